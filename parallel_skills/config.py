@@ -1,0 +1,90 @@
+"""Learner configurations with the paper's defaults (SkillS, App. B.3, manipulation).
+
+Both configs are frozen, hashable ``dataclasses.dataclass`` objects: pass them as
+static arguments to ``jax.jit`` (or close over them); every field is a Python scalar,
+string or tuple, never an array.
+
+Target-network periods are deliberately different for the two learners (App. B.3):
+scheduler actor 100 / critic 25, new skill actor 25 / critic 100.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Tuple
+
+
+@dataclasses.dataclass(frozen=True)
+class SchedulerConfig:
+    """HCMPO scheduler learner (paper §4.3, Eq. 3-4; App. A, B.3)."""
+
+    # Action space z = (i, k): K = {10, 20, ..., 100} (App. B.3).
+    skill_lengths: Tuple[int, ...] = (10, 20, 30, 40, 50, 60, 70, 80, 90, 100)
+    # Initial P(k = max K); the other M-1 lengths share the rest uniformly, i.e.
+    # (1 - 0.95) / 9 ≈ 0.00556 each (the paper prints 0.005, which does not sum to 1).
+    initial_max_length_prob: float = 0.95
+    batch_size: int = 128
+    learning_rate: float = 1e-4
+    min_replay_size: int = 400
+    samples_per_insert: float = 100.0
+    target_actor_period: int = 100
+    target_critic_period: int = 25
+    epsilon: float = 0.1  # E-step KL bound (temperature dual).
+    epsilon_kl: float = 5e-3  # M-step categorical KL(π_old ‖ π) trust region.
+    discount: float = 0.99
+    hidden: Tuple[int, ...] = (128, 256, 128)  # policy and critic torsos.
+    critic_head_hidden: Tuple[int, ...] = (128,)  # per-(c, i, k) critic head.
+    # Dual variables are positive via softplus(log_param) + 1e-8 (as Acme).
+    init_log_temperature: float = 1.0
+    init_log_alpha: float = 1.0
+    dual_learning_rate: float = 1e-2
+    grad_clip_norm: float = 40.0
+    augmentation: bool = True
+
+    @property
+    def num_lengths(self) -> int:
+        return len(self.skill_lengths)
+
+    @property
+    def max_length(self) -> int:
+        return max(self.skill_lengths)
+
+    @property
+    def min_length(self) -> int:
+        return min(self.skill_lengths)
+
+
+@dataclasses.dataclass(frozen=True)
+class NewSkillConfig:
+    """CRR new-skill learner (paper §4.2, App. B, B.3; Wang et al. 2020)."""
+
+    hidden: Tuple[int, ...] = (128, 256, 128)  # policy and critic torsos.
+    batch_size: int = 256
+    learning_rate: float = 3e-4
+    min_replay_size: int = 200
+    samples_per_insert: float = 50.0
+    target_actor_period: int = 25
+    target_critic_period: int = 100
+    discount: float = 0.99
+    crr_mode: str = "exp"  # "exp": min(exp(A/β), clip); "indicator": 1[A > 0].
+    crr_beta: float = 1.0
+    crr_clip: float = 20.0
+    num_action_samples: int = 4  # J: samples for the CRR baseline and the TD target.
+    # α = 1: pure CRR; α < 1: loss = α·CRR + (1 − α)·MPO (App. B "baselines").
+    mpo_alpha: float = 1.0
+    mpo_num_samples: int = 20  # sampled actions for the Gaussian MPO E-step.
+    mpo_epsilon: float = 0.1
+    mpo_epsilon_mean: float = 5e-3
+    mpo_epsilon_stddev: float = 1e-5
+    mpo_init_log_temperature: float = 1.0
+    mpo_init_log_alpha_mean: float = 1.0
+    mpo_init_log_alpha_stddev: float = 10.0
+    dual_learning_rate: float = 1e-2
+    min_std: float = 1e-3
+    grad_clip_norm: float = 40.0
+
+    def __post_init__(self):
+        if self.crr_mode not in ("exp", "indicator"):
+            raise ValueError(f"crr_mode must be 'exp' or 'indicator', got {self.crr_mode!r}")
+        if not 0.0 <= self.mpo_alpha <= 1.0:
+            raise ValueError(f"mpo_alpha must be in [0, 1], got {self.mpo_alpha}")
