@@ -1,0 +1,205 @@
+"""Networks (flax.linen) for the scheduler and the new skill (paper §4, App. B.3).
+
+Torsos follow Acme's ``LayerNormMLP``: first layer Dense → LayerNorm → tanh, later layers
+Dense → elu (all layers activated: the torso output is a feature vector).
+
+* ``GaussianPolicy``: obs [..., O] → (mean [..., A], std [..., A]); mean = tanh(raw) ∈ (−1, 1),
+  std = softplus(raw) + min_std. Actions are sampled from the *unsquashed* Gaussian and
+  clipped to [−1, 1]; log-probs are plain Gaussian densities of the stored (clipped) action
+  (no tanh-squashed distribution: other skills' actions sit exactly at ±1).
+* ``SchedulerPolicy``: obs → (logits_i [..., N+1], logits_k [..., M]), independent heads.
+* ``QCritic``: (obs, action) → q.
+* ``SchedulerCritic``: Q(s, c, i, k) for P queried (c, i, k) triples per state, torso once
+  per state.
+
+Joint scheduler actions are enumerated by ``all_pairs`` in i-major, k-minor order:
+pair p = i·M + k_idx.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence, Tuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+class LayerNormMLP(nn.Module):
+    """Acme-style torso: Dense→LayerNorm→tanh, then Dense→elu. [..., D] -> [..., hidden[-1]]."""
+
+    hidden: Tuple[int, ...]
+
+    @nn.compact
+    def __call__(self, x):
+        for n, width in enumerate(self.hidden):
+            x = nn.Dense(width, kernel_init=nn.initializers.variance_scaling(1.0, "fan_in", "uniform"),
+                         name=f"dense_{n}")(x)
+            if n == 0:
+                x = nn.LayerNorm(name="layer_norm")(x)
+                x = jnp.tanh(x)
+            else:
+                x = nn.elu(x)
+        return x
+
+
+# --------------------------------------------------------------------------- Gaussian policy
+
+class GaussianPolicy(nn.Module):
+    """New-skill policy π_N(a|s) (paper §4.2, App. B.3): isotropic Gaussian.
+
+    obs [..., O] -> (mean [..., A] in (−1, 1), std [..., A] > min_std).
+    """
+
+    action_size: int
+    hidden: Tuple[int, ...] = (128, 256, 128)
+    min_std: float = 1e-3
+
+    @nn.compact
+    def __call__(self, obs):
+        h = LayerNormMLP(tuple(self.hidden), name="torso")(obs)
+        out = nn.Dense(2 * self.action_size,
+                       kernel_init=nn.initializers.variance_scaling(1e-4, "fan_in", "uniform"),
+                       name="head")(h)
+        raw_mean, raw_std = jnp.split(out, 2, axis=-1)
+        mean = jnp.tanh(raw_mean)
+        std = nn.softplus(raw_std) + self.min_std
+        return mean, std
+
+
+def gaussian_log_prob(mean: jnp.ndarray, std: jnp.ndarray, action: jnp.ndarray) -> jnp.ndarray:
+    """log N(action; mean, diag(std²)) summed over the last axis. [..., A] x3 -> [...]."""
+    z = (action - mean) / std
+    return jnp.sum(-0.5 * z * z - jnp.log(std) - 0.5 * math.log(2.0 * math.pi), axis=-1)
+
+
+def sample_action(mean: jnp.ndarray, std: jnp.ndarray, key: jax.Array) -> jnp.ndarray:
+    """a = clip(mean + std·ε, −1, 1), ε ~ N(0, I). [..., A] -> [..., A]."""
+    eps = jax.random.normal(key, mean.shape, mean.dtype)
+    return jnp.clip(mean + std * eps, -1.0, 1.0)
+
+
+def deterministic_action(mean: jnp.ndarray, std: jnp.ndarray = None) -> jnp.ndarray:
+    """The deterministic (evaluation) action: the mean, already in (−1, 1). [..., A]."""
+    del std
+    return mean
+
+
+# --------------------------------------------------------------------------- scheduler policy
+
+def length_bias(num_lengths: int, initial_max_length_prob: float) -> np.ndarray:
+    """Initial k-head bias (App. A.3): log-probs with P(k = max K) = p (last index) and
+    (1 − p)/(M − 1) for each other length. [M] float32 (zeros if M == 1)."""
+    if num_lengths == 1:
+        return np.zeros((1,), np.float32)
+    p = float(initial_max_length_prob)
+    probs = np.full((num_lengths,), (1.0 - p) / (num_lengths - 1), np.float64)
+    probs[-1] = p
+    return np.log(probs).astype(np.float32)
+
+
+class SchedulerPolicy(nn.Module):
+    """Scheduler π_S(i, k | s) = π(i|s)·π(k|s) (paper §4.1): two categorical heads.
+
+    obs [..., O] -> (logits_i [..., N+1], logits_k [..., M]).
+    Init: both heads have zero kernels; the i-head bias is 0 (uniform over skills) and the
+    k-head bias is ``length_bias`` (P(k = max K) = initial_max_length_prob, rest uniform).
+    The skill lengths must be sorted ascending so that the last index is max K.
+    """
+
+    num_skills: int  # N + 1, including the new skill.
+    num_lengths: int  # M.
+    hidden: Tuple[int, ...] = (128, 256, 128)
+    initial_max_length_prob: float = 0.95
+
+    @nn.compact
+    def __call__(self, obs):
+        h = LayerNormMLP(tuple(self.hidden), name="torso")(obs)
+        logits_i = nn.Dense(self.num_skills, kernel_init=nn.initializers.zeros,
+                            bias_init=nn.initializers.zeros, name="head_i")(h)
+        bias = jnp.asarray(length_bias(self.num_lengths, self.initial_max_length_prob))
+        logits_k = nn.Dense(self.num_lengths, kernel_init=nn.initializers.zeros,
+                            bias_init=lambda *_: bias, name="head_k")(h)
+        return logits_i, logits_k
+
+
+def all_pairs(num_skills: int, skill_lengths: Sequence[int]) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """All joint actions z = (i, k), i-major / k-minor: pair p = i·M + k_idx.
+
+    Returns numpy int32 arrays (i [P], k_idx [P], k_value [P]) with P = num_skills·M.
+    """
+    m = len(skill_lengths)
+    i = np.repeat(np.arange(num_skills, dtype=np.int32), m)
+    k_idx = np.tile(np.arange(m, dtype=np.int32), num_skills)
+    k_value = np.asarray(skill_lengths, np.int32)[k_idx]
+    return i, k_idx, k_value
+
+
+def joint_log_probs(logits_i: jnp.ndarray, logits_k: jnp.ndarray) -> jnp.ndarray:
+    """log π(i, k|s) = log_softmax(logits_i)[i] + log_softmax(logits_k)[k] for all pairs in
+    ``all_pairs`` order. ([..., N+1], [..., M]) -> [..., (N+1)·M]."""
+    li = jax.nn.log_softmax(logits_i, axis=-1)
+    lk = jax.nn.log_softmax(logits_k, axis=-1)
+    joint = li[..., :, None] + lk[..., None, :]
+    return joint.reshape(joint.shape[:-2] + (-1,))
+
+
+def categorical_entropy(logits: jnp.ndarray) -> jnp.ndarray:
+    """H = −Σ p log p over the last axis. [..., C] -> [...]."""
+    logp = jax.nn.log_softmax(logits, axis=-1)
+    return -jnp.sum(jnp.exp(logp) * logp, axis=-1)
+
+
+# --------------------------------------------------------------------------- critics
+
+class QCritic(nn.Module):
+    """New-skill critic Q(s, a): concat(obs, action) → LayerNormMLP → Dense(1).
+
+    (obs [..., O], action [..., A]) -> q [...].
+    """
+
+    hidden: Tuple[int, ...] = (128, 256, 128)
+
+    @nn.compact
+    def __call__(self, obs, action):
+        x = jnp.concatenate([obs, action], axis=-1)
+        h = LayerNormMLP(tuple(self.hidden), name="torso")(x)
+        return nn.Dense(1, name="head")(h)[..., 0]
+
+
+class SchedulerCritic(nn.Module):
+    """Scheduler critic Q(s, c, i, k) (paper Eq. 3; DESIGN "Scheduler and counters").
+
+    __call__(obs [B, O], c [B, P] int, i [B, P] int, k_idx [B, P] int) -> q [B, P].
+
+    The torso runs once per state; a small head runs for each of the P queried triples on
+    [features, c / max_length, one_hot(i), one_hot(k_idx)]. The head's first layer is linear
+    in that concatenation, so it is computed exactly as W_f·f (once per state) + w_c·c/maxK +
+    E_i[i] + E_k[k] (embedding rows = one-hot matmuls), then elu and the rest of the head.
+    """
+
+    num_skills: int
+    num_lengths: int
+    max_length: int
+    hidden: Tuple[int, ...] = (128, 256, 128)
+    head_hidden: Tuple[int, ...] = (128,)
+
+    @nn.compact
+    def __call__(self, obs, c, i, k_idx):
+        feat = LayerNormMLP(tuple(self.hidden), name="torso")(obs)  # [B, H]
+        head = tuple(self.head_hidden)
+        if not head:
+            raise ValueError("SchedulerCritic needs at least one head layer")
+        w0 = head[0]
+        emb_init = nn.initializers.variance_scaling(1.0, "fan_in", "uniform")
+        x = nn.Dense(w0, name="head_feat")(feat)[..., None, :]  # [B, 1, w0] (carries the bias)
+        c_scaled = (jnp.asarray(c, feat.dtype) / float(self.max_length))[..., None]  # [B, P, 1]
+        x = x + nn.Dense(w0, use_bias=False, name="head_c")(c_scaled)
+        x = x + nn.Embed(self.num_skills, w0, embedding_init=emb_init, name="head_i")(i)
+        x = x + nn.Embed(self.num_lengths, w0, embedding_init=emb_init, name="head_k")(k_idx)
+        x = nn.elu(x)
+        for n, width in enumerate(head[1:]):
+            x = nn.elu(nn.Dense(width, name=f"head_{n + 1}")(x))
+        return nn.Dense(1, name="head_out")(x)[..., 0]
