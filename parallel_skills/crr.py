@@ -1,0 +1,53 @@
+"""Critic Regularized Regression for the new skill (Wang et al. 2020; paper §4.2;
+DESIGN "New skill").
+
+Policy loss −E[f(A)·log π(a|s)] with A(s, a) = Q(s, a) − mean_j Q(s, a_j), a_j ~ π(.|s),
+f = min(exp(A/β), clip) ("exp") or 1[A > 0] ("indicator"). The critic Q(s, a) is learnt by
+TD with the new skill as target policy.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+
+def crr_advantage(q_taken: jnp.ndarray, q_sampled: jnp.ndarray) -> jnp.ndarray:
+    """A(s, a) = Q(s, a) − (1/J)·Σ_j Q(s, a_j), a_j ~ π(.|s) (CRR, Wang et al. Eq. 3 with the
+    mean estimator). q_taken [B], q_sampled [B, J] -> [B] (stop-gradient)."""
+    return jax.lax.stop_gradient(q_taken - jnp.mean(q_sampled, axis=-1))
+
+
+def crr_weights(advantage: jnp.ndarray, mode: str = "exp", beta: float = 1.0,
+                clip: float = 20.0) -> jnp.ndarray:
+    """CRR filter f(A) (Wang et al. 2020): "exp": min(exp(A/β), clip); "indicator": 1[A > 0].
+
+    ``mode`` is static. [B] -> [B] float (stop-gradient)."""
+    if mode == "exp":
+        # exp(min(A/β, log clip)) == min(exp(A/β), clip) without overflow.
+        w = jnp.exp(jnp.minimum(advantage / beta, jnp.log(clip)))
+    elif mode == "indicator":
+        w = (advantage > 0).astype(advantage.dtype)
+    else:
+        raise ValueError(f"unknown CRR mode {mode!r}")
+    return jax.lax.stop_gradient(w)
+
+
+def crr_policy_loss(log_prob_taken: jnp.ndarray, weights: jnp.ndarray,
+                    mask: jnp.ndarray = None) -> jnp.ndarray:
+    """L_π = −mean_b f(A_b)·log π(a_b|s_b) (CRR). [B], [B] (, mask [B]) -> scalar.
+
+    With ``mask`` the mean is over masked rows: Σ m·f·log π / max(Σ m, 1)."""
+    x = jax.lax.stop_gradient(weights) * log_prob_taken
+    if mask is None:
+        return -jnp.mean(x)
+    mask = mask.astype(x.dtype)
+    return -jnp.sum(mask * x) / jnp.maximum(jnp.sum(mask), 1.0)
+
+
+def td_target(reward: jnp.ndarray, discount: jnp.ndarray, q_next: jnp.ndarray,
+              gamma: float) -> jnp.ndarray:
+    """y = r + γ·d·(1/J)·Σ_j Q'(s', a'_j), a'_j ~ π_target(.|s') (expected SARSA with the new
+    skill as target policy). reward, discount [B]; q_next [B, J] (J ≥ 1) -> y [B]
+    (stop-gradient). discount is 0 at termination, 1 otherwise (truncation bootstraps)."""
+    return jax.lax.stop_gradient(reward + gamma * discount * jnp.mean(q_next, axis=-1))
