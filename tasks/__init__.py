@@ -1,0 +1,40 @@
+"""Task registry: ``tasks.make(name, physics=..., **overrides)`` returns a Brax-API env.
+
+Every task of the manipulation domain (``tasks.names()``) exists for every physics backend:
+``kinematic`` (pure JAX, no physics engine), ``mjx`` (MuJoCo MJX, impl jax), ``warp`` (MJX, impl
+warp) and ``mujoco`` (classic MuJoCo C engine called from JAX through ``pure_callback``).
+"""
+
+from __future__ import annotations
+
+from tasks.manipulation import task_defs
+
+PHYSICS = ("kinematic", "mjx", "warp", "mujoco")
+
+
+def names() -> list[str]:
+    """Names of all tasks (sparse tasks and dense skill rewards)."""
+    return task_defs.names()
+
+
+def make(name: str, physics: str = "kinematic", **overrides):
+    """Build task ``name`` on backend ``physics``. Overrides: ``episode_length`` and backend options."""
+    if name not in task_defs.TASKS:
+        raise ValueError(f"unknown task {name!r}; valid tasks: {', '.join(names())}")
+    if physics == "kinematic":
+        from tasks.manipulation.kinematic import KinematicBlocks
+
+        return KinematicBlocks(name, **overrides)
+    if physics in ("mjx", "warp"):
+        try:
+            from tasks.manipulation.mjx_env import make_mjx_env
+        except ImportError as e:  # pragma: no cover - until the MJX domain lands
+            raise ValueError(f"physics {physics!r} is not available: {e}") from None
+        return make_mjx_env(name, impl="jax" if physics == "mjx" else "warp", **overrides)
+    if physics == "mujoco":
+        try:
+            from tasks.manipulation.mujoco_env import make_mujoco_env
+        except ImportError as e:  # pragma: no cover
+            raise ValueError(f"physics {physics!r} is not available: {e}") from None
+        return make_mujoco_env(name, **overrides)
+    raise ValueError(f"unknown physics {physics!r}; valid: {', '.join(PHYSICS)}")
