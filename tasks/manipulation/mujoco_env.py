@@ -155,7 +155,7 @@ class MujocoManipulationEnv(Env):
 
     def physics_states(self, state: State) -> np.ndarray:
         """Host copy of the float64 full physics states [..., STATE_SIZE] of a (batched) State."""
-        return decode_states(jax.device_get(state.pipeline_state))
+        return decode_states(jax.device_get(state.pipeline_state)).copy()
 
     def encode(self, states: np.ndarray) -> jax.Array:
         """Full physics states float64 [..., STATE_SIZE] -> ``pipeline_state`` words (to start from

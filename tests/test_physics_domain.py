@@ -1,0 +1,204 @@
+"""Physics manipulation domain: scene, NumPy twin, MuJoCo callback env, MJX (jax / warp) envs.
+
+CI-sized: small batches, short horizons. MJX-jax on a 2-core CPU can deadlock at larger batches
+(shared/STACK.md), so MJX code paths here run pinned to one core with batches ≤ 8 and timeouts.
+Long measurements live in bench/physics_throughput.py.
+"""
+
+from __future__ import annotations
+
+import os
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from tasks.manipulation import layout as L
+from tasks.manipulation import physics_np as P
+from tasks.manipulation import task_defs
+
+if not jax.config.jax_compilation_cache_dir:  # conftest.py normally sets it
+    jax.config.update("jax_compilation_cache_dir", os.path.expanduser("~/.cache/parallel_skills_jax"))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+SPARSE_TASKS = [n for n in task_defs.names() if task_defs.get(n).kind == "sparse"]
+
+
+def scripted_lift_np(obs, cube="green"):
+    """Minimal NumPy scripted lift (independent of scripted.py): above the cube with fingers open,
+    descend, close, lift."""
+    pinch, cpos, q = obs[L.PINCH_POS], obs[L.cube_pos(cube)], obs[L.cube_quat(cube)]
+    yaw, grasp = obs[L.YAW], obs[L.GRASP]
+    dyaw = (2 * np.arctan2(q[3], q[0]) - yaw + np.pi / 4) % (np.pi / 2) - np.pi / 4
+    gain = 0.7 / (L.MAX_LINEAR_SPEED * L.CONTROL_DT)
+    a = np.zeros(5)
+    if grasp > 0.5:
+        a[2], a[4] = (0.25 - pinch[2]) * gain, -1.0
+    else:
+        dxy = cpos[:2] - pinch[:2]
+        a[:2] = dxy * gain
+        if np.linalg.norm(dxy) > 0.006 or abs(dyaw) > 0.1:
+            a[2] = (cpos[2] + 0.07 - pinch[2]) * gain
+            a[3] = 0.7 * dyaw / (L.MAX_YAW_RATE * L.CONTROL_DT)
+            a[4] = 1.0
+        else:
+            dz = cpos[2] - pinch[2]
+            a[2] = dz * gain
+            a[4] = 1.0 if abs(dz) > 0.005 else -1.0
+    return np.clip(a, -1.0, 1.0)
+
+
+# --- scene and NumPy twin -----------------------------------------------------------------------
+def test_scene_layout_and_sensors_match_observation():
+    model, substeps = P.load_model()
+    assert substeps * model.opt.timestep == pytest.approx(L.CONTROL_DT)
+    state = P.init_states([3])[0]
+    data = mujoco.MjData(model)
+    mujoco.mj_setState(model, data, state, P.STATE_SPEC)
+    for _ in range(7):  # move things a bit so that poses are generic
+        data.ctrl[:] = [0.03, -0.02, 0.01, 0.5, -0.02, -0.02]
+        mujoco.mj_step(model, data)
+    mujoco.mj_forward(model, data)
+    obs = P.observe(data.qpos.copy(), data.qvel.copy(), data.act.copy())
+    assert obs.shape == (L.OBS_SIZE,)
+
+    def sensor(name):
+        return data.sensor(name).data.copy()
+
+    def same_quat(a, b):
+        return min(np.abs(a - b).max(), np.abs(a + b).max()) < 1e-9
+
+    np.testing.assert_allclose(obs[L.PINCH_POS], sensor("pinch_pos"), atol=1e-12)
+    assert same_quat(obs[L.OBS_SLICES["pinch_pose"]][3:], sensor("pinch_quat"))
+    for name in L.CUBE_NAMES:
+        np.testing.assert_allclose(obs[L.cube_pos(name)], sensor(f"{name}_pos"), atol=1e-12)
+        assert same_quat(obs[L.cube_quat(name)], sensor(f"{name}_quat"))
+        np.testing.assert_allclose(obs[L.cube_rel_pos(name)], sensor(f"{name}_wrt_pinch"), atol=1e-12)
+        assert same_quat(obs[L.cube_rel_quat(name)], sensor(f"{name}_quat_wrt_pinch"))
+    # Aperture: distance between the inner pad faces.
+    left = data.geom("pad_left").xpos - data.geom("pad_left").xmat.reshape(3, 3)[:, 1] * 0.005
+    right = data.geom("pad_right").xpos + data.geom("pad_right").xmat.reshape(3, 3)[:, 1] * 0.005
+    assert np.linalg.norm(left - right) == pytest.approx(obs[L.FINGER], abs=1e-9)
+
+
+def test_reset_distribution():
+    states = P.init_states(np.arange(64))
+    obs = P.observe_states(states)
+    pinch = obs[:, L.PINCH_POS]
+    assert np.all(np.abs(pinch[:, :2]) <= 0.05) and np.all((pinch[:, 2] >= 0.12) & (pinch[:, 2] <= 0.18))
+    np.testing.assert_allclose(obs[:, L.YAW], 0.0)
+    np.testing.assert_allclose(obs[:, L.FINGER], L.APERTURE_OPEN)
+    cubes = np.stack([obs[:, L.cube_pos(n)] for n in L.CUBE_NAMES], 1)
+    assert np.all(np.abs(cubes[..., :2]) <= 0.08)
+    d = np.linalg.norm(cubes[:, :, None, :2] - cubes[:, None, :, :2], axis=-1) + np.eye(3)
+    assert d.min() >= P.RESET_MIN_DIST
+    yaw = 2 * np.arctan2(np.stack([obs[:, L.cube_quat(n)][:, 3] for n in L.CUBE_NAMES], 1),
+                         np.stack([obs[:, L.cube_quat(n)][:, 0] for n in L.CUBE_NAMES], 1))
+    assert np.all(np.abs(yaw) <= np.pi / 4 + 1e-9)
+    # Deterministic per seed.
+    np.testing.assert_array_equal(P.init_states([5]), P.init_states([5]))
+
+
+def test_velocity_tracking_and_fingers():
+    twin = P.MujocoTwin("reach_green")
+    obs0 = twin.reset(seed=1)
+    for _ in range(20):
+        obs, *_ = twin.step(np.array([1.0, -0.5, 0.5, 0.5, -1.0]))
+    moved = obs[L.PINCH_POS] - obs0[L.PINCH_POS]
+    expected = np.array([1.0, -0.5, 0.5]) * L.MAX_LINEAR_SPEED * 20 * L.CONTROL_DT
+    np.testing.assert_allclose(moved, expected, atol=0.004)
+    assert obs[L.YAW] == pytest.approx(0.5 * 20 * L.CONTROL_DT, abs=0.05)
+    # Closing at full speed for 1 s closes the 8.5 cm aperture (nothing between the pads).
+    assert obs[L.FINGER] < 0.005
+    np.testing.assert_allclose(obs[L.OBS_SLICES["joint_vel"]], [0.05, -0.025, 0.025, 0.5], atol=0.005)
+
+
+@pytest.mark.timeout(120)
+def test_twin_scripted_lift():
+    twin = P.MujocoTwin("lift_green", episode_length=220)
+    successes = 0
+    for seed in range(4):
+        obs = twin.reset(seed=seed)
+        ok = False
+        for _ in range(220):
+            obs, reward, done, info = twin.step(scripted_lift_np(obs))
+            ok |= info["success"] > 0
+            assert np.all(np.isfinite(obs))
+        successes += ok
+    assert successes >= 3
+
+
+def test_twin_nan_injection_resets():
+    twin = P.MujocoTwin("lift_green")
+    twin.reset(seed=0)
+    bad = twin.state.copy()
+    bad[P.QVEL][:] = np.nan
+    twin.reset(state=bad)
+    obs, reward, done, info = twin.step(np.zeros(5))
+    assert info["nan_reset"] == 1.0 and np.all(np.isfinite(obs)) and np.isfinite(reward)
+    obs, reward, done, info = twin.step(np.zeros(5))
+    assert info["nan_reset"] == 0.0
+    # A blown-up (ejected) cube counts too.
+    s = twin.state.copy()
+    s[P.QPOS][P.CUBE_QPOS[1]] = 50.0
+    twin.reset(state=s)
+    _, _, _, info = twin.step(np.zeros(5))
+    assert info["nan_reset"] == 1.0
+
+
+# --- MuJoCo callback env --------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def mujoco_env():
+    from tasks.manipulation.mujoco_env import make_mujoco_env
+
+    return make_mujoco_env("lift_green", episode_length=12, num_threads=2)
+
+
+@pytest.mark.timeout(120)
+def test_callback_env_bitwise_equals_twin_in_scan(mujoco_env):
+    env = mujoco_env
+    n, T = 4, 15
+    keys = jax.random.split(jax.random.PRNGKey(3), n)
+    actions = jax.random.uniform(jax.random.PRNGKey(4), (T, n, L.ACTION_SIZE), minval=-1.0, maxval=1.0)
+
+    @jax.jit
+    def rollout(keys, actions):
+        s0 = jax.vmap(env.reset)(keys)
+
+        def body(s, a):
+            s = jax.vmap(env.step)(s, a)
+            return s, (s.pipeline_state, s.obs, s.reward, s.done, s.info["truncation"], s.metrics["success"])
+
+        return s0, jax.lax.scan(body, s0, actions)
+
+    s0, (_, (words, obs, reward, done, trunc, success)) = rollout(keys, actions)
+    assert obs.shape == (T, n, L.OBS_SIZE) and obs.dtype == jnp.float32
+    np.testing.assert_array_equal(np.asarray(done[:, 0]), (np.arange(1, T + 1) >= 12).astype(np.float32))
+    np.testing.assert_array_equal(np.asarray(trunc), np.asarray(done))
+    seeds = np.asarray(jax.vmap(lambda k: jax.random.bits(k, (), jnp.uint32))(keys))
+    twin = P.MujocoTwin("lift_green", episode_length=12)
+    for b in range(n):
+        o = twin.reset(seed=int(seeds[b]))
+        np.testing.assert_array_equal(o.astype(np.float32), np.asarray(s0.obs[b]))
+        for t in range(T):
+            o, r, d, info = twin.step(np.asarray(actions[t, b], np.float32).astype(np.float64))
+            np.testing.assert_array_equal(twin.state.view(np.uint32), np.asarray(words[t, b]))
+            np.testing.assert_array_equal(o.astype(np.float32), np.asarray(obs[t, b]))
+            assert np.float32(r) == reward[t, b] and np.float32(info["success"]) == success[t, b]
+
+
+@pytest.mark.timeout(60)
+def test_callback_env_unbatched_and_nan_reset(mujoco_env):
+    env = mujoco_env
+    s = jax.jit(env.reset)(jax.random.PRNGKey(0))
+    s = jax.jit(env.step)(s, jnp.ones(5))
+    assert s.obs.shape == (L.OBS_SIZE,) and float(s.info["nan_reset"]) == 0.0
+    states = env.physics_states(s)
+    states[P.QPOS][0] = np.nan
+    s_bad = s.replace(pipeline_state=env.encode(states))
+    s2 = jax.jit(env.step)(s_bad, jnp.zeros(5))
+    assert float(s2.info["nan_reset"]) == 1.0 and float(s2.metrics["nan_resets"]) == 1.0
+    assert np.all(np.isfinite(np.asarray(s2.obs))) and np.isfinite(float(s2.reward))
+    assert np.all(np.isfinite(env.physics_states(s2)))
