@@ -41,6 +41,13 @@ class SchedulerConfig:
     grad_clip_norm: float = 40.0
     augmentation: bool = True
 
+    def __post_init__(self):
+        lengths = tuple(self.skill_lengths)
+        if not lengths or any(int(k) < 1 for k in lengths) or list(lengths) != sorted(set(lengths)):
+            raise ValueError(f"skill_lengths must be positive, unique and ascending, got {lengths}")
+        if not 0.0 < self.initial_max_length_prob < 1.0 and len(lengths) > 1:
+            raise ValueError("initial_max_length_prob must be in (0, 1)")
+
     @property
     def num_lengths(self) -> int:
         return len(self.skill_lengths)

@@ -1,0 +1,175 @@
+import functools
+
+import numpy as np
+import jax
+import jax.numpy as jnp
+import pytest
+
+from parallel_skills.augmentation import with_augmentation
+from parallel_skills.config import NewSkillConfig, SchedulerConfig
+from parallel_skills.learners import (make_new_skill_apply, make_scheduler_apply, new_skill_distribution,
+                                      new_skill_learner_init, new_skill_learner_update, scheduler_learner_init,
+                                      scheduler_learner_update, scheduler_logits, updates_per_iteration)
+
+O, A, N1, K, B = 6, 2, 3, (2, 4), 16
+SCFG = SchedulerConfig(skill_lengths=K, hidden=(32, 32), critic_head_hidden=(16,), learning_rate=1e-3,
+                       target_actor_period=5, target_critic_period=5, discount=0.5)
+NCFG = NewSkillConfig(hidden=(32, 32), learning_rate=1e-3, target_actor_period=5,
+                      target_critic_period=5, discount=0.5)
+NCFG_MIX = NewSkillConfig(hidden=(32, 32), learning_rate=1e-3, mpo_alpha=0.5, mpo_num_samples=8,
+                          discount=0.5)
+
+
+def _scheduler_batch(key, all_decisions=None):
+    ks = jax.random.split(key, 6)
+    k_idx = jax.random.randint(ks[0], (B,), 0, len(K))
+    c = jnp.minimum(jax.random.randint(ks[1], (B,), 1, 5), jnp.asarray(K)[k_idx])
+    is_decision = c == jnp.asarray(K)[k_idx]
+    return dict(obs=jax.random.normal(ks[2], (B, O)), next_obs=jax.random.normal(ks[3], (B, O)),
+                reward=jax.random.uniform(ks[4], (B,)), discount=(jnp.arange(B) % 5 != 0).astype(jnp.float32),
+                skill=jax.random.randint(ks[5], (B,), 0, N1), k_idx=k_idx.astype(jnp.int32),
+                c=c.astype(jnp.int32), is_decision=is_decision, weight=jnp.ones(B))
+
+
+def _new_skill_batch(key):
+    ks = jax.random.split(key, 4)
+    return dict(obs=jax.random.normal(ks[0], (B, O)), action=jnp.clip(jax.random.normal(ks[1], (B, A)), -1, 1),
+                reward=jax.random.uniform(ks[2], (B,)), discount=jnp.ones(B),
+                next_obs=jax.random.normal(ks[3], (B, O)))
+
+
+def _scan_updates(update, config, n):
+    @jax.jit
+    def run(state, batch, key):
+        def body(s, k):
+            return update(s, batch, k, config)
+        return jax.lax.scan(body, state, jax.random.split(key, n))
+    return run
+
+
+@pytest.fixture(scope="session")
+def sched_run():
+    return _scan_updates(scheduler_learner_update, SCFG, 50)
+
+
+@pytest.fixture(scope="session")
+def newskill_run():
+    return _scan_updates(new_skill_learner_update, NCFG, 50)
+
+
+def _finite(tree):
+    return all(np.all(np.isfinite(np.asarray(x))) for x in jax.tree_util.tree_leaves(tree))
+
+
+def test_scheduler_init_probs_and_apply():
+    state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, SCFG)
+    obs = jax.random.normal(jax.random.PRNGKey(1), (5, O))
+    apply = make_scheduler_apply(N1, SCFG)
+    li, lk = apply(state.policy_params, obs)
+    np.testing.assert_allclose(jax.nn.softmax(lk)[:, -1], 0.95, rtol=1e-5)
+    np.testing.assert_allclose(jax.nn.softmax(li), 1 / 3, rtol=1e-5)
+    li2, lk2 = scheduler_logits(state.policy_params, obs)
+    np.testing.assert_allclose(li, li2)
+    np.testing.assert_allclose(lk, lk2)
+
+
+def test_scheduler_updates_finite_and_critic_loss_decreases(sched_run):
+    state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, SCFG)
+    base = _scheduler_batch(jax.random.PRNGKey(1))
+    assert 0 < int(base["is_decision"].sum()) < B
+    batch = with_augmentation(base, K)  # [2B]: originals + duplicates (weight 0 where not applicable)
+    assert batch["obs"].shape == (2 * B, O)
+    assert 0 < float(batch["weight"][B:].sum()) < B
+    new_state, metrics = sched_run(state, batch, jax.random.PRNGKey(2))
+    expected = {"critic_loss", "q_mean", "q_max", "temperature", "alpha", "kl", "policy_entropy_i",
+                "policy_entropy_k", "decision_fraction", "policy_loss"}
+    assert expected <= set(metrics)
+    assert _finite(metrics) and _finite(new_state)
+    loss = np.asarray(metrics["critic_loss"])
+    assert loss[-5:].mean() < 0.5 * loss[:5].mean(), loss
+    assert int(new_state.steps) == 50
+    w, d = np.asarray(batch["weight"]), np.asarray(batch["is_decision"])
+    np.testing.assert_allclose(metrics["decision_fraction"][0], (w * d).sum() / w.sum(), rtol=1e-6)
+    # Targets were hard-copied at step 50 (period 5).
+    for a, b in zip(jax.tree_util.tree_leaves(new_state.target_critic_params),
+                    jax.tree_util.tree_leaves(new_state.critic_params)):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_scheduler_no_decision_rows_gives_zero_policy_loss(sched_run):
+    state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, SCFG)
+    batch = with_augmentation(_scheduler_batch(jax.random.PRNGKey(1)), K)
+    batch["weight"] = jnp.asarray(jnp.where(batch["is_decision"], 0.0, batch["weight"]), jnp.float32)
+    new_state, metrics = sched_run(state, batch, jax.random.PRNGKey(2))
+    np.testing.assert_array_equal(metrics["policy_loss"], 0.0)
+    np.testing.assert_array_equal(metrics["decision_fraction"], 0.0)
+    assert _finite(new_state) and _finite(metrics)
+    # Policy and duals untouched (zero gradients -> zero Adam updates).
+    for a, b in zip(jax.tree_util.tree_leaves(new_state.policy_params),
+                    jax.tree_util.tree_leaves(state.policy_params)):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(new_state.dual_params["log_temperature"], SCFG.init_log_temperature)
+    np.testing.assert_array_equal(new_state.dual_params["log_alpha"], SCFG.init_log_alpha)
+
+
+def test_scheduler_policy_moves_towards_best_pair(sched_run):
+    """Rewards only for skill 2: after updates on decision states, π(i=2) rises from 1/3."""
+    state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, SCFG)
+    base = _scheduler_batch(jax.random.PRNGKey(3))
+    base["reward"] = (base["skill"] == 2).astype(jnp.float32)
+    base["is_decision"] = jnp.ones(B, bool)
+    base["c"] = jnp.asarray(K, jnp.int32)[base["k_idx"]]
+    batch = with_augmentation(base, K)
+    new_state, _ = sched_run(state, batch, jax.random.PRNGKey(4))
+    li, _ = scheduler_logits(new_state.policy_params, base["obs"])
+    assert float(jax.nn.softmax(li)[:, 2].mean()) > 0.4
+
+
+def test_new_skill_init_apply_and_updates(newskill_run):
+    state = new_skill_learner_init(jax.random.PRNGKey(0), O, A, NCFG)
+    batch = _new_skill_batch(jax.random.PRNGKey(1))
+    mean, std = make_new_skill_apply(A, NCFG)(state.policy_params, batch["obs"])
+    mean2, std2 = new_skill_distribution(state.policy_params, batch["obs"])
+    assert mean.shape == (B, A)
+    np.testing.assert_allclose(mean, mean2)
+    np.testing.assert_allclose(std, std2)
+    new_state, metrics = newskill_run(state, batch, jax.random.PRNGKey(2))
+    assert {"critic_loss", "q_mean", "crr_weight_mean", "policy_log_std_mean", "advantage_mean"} <= set(metrics)
+    assert _finite(metrics) and _finite(new_state)
+    loss = np.asarray(metrics["critic_loss"])
+    assert loss[-5:].mean() < 0.5 * loss[:5].mean(), loss
+    # CRR increases the likelihood of the batch actions on average.
+    from parallel_skills.networks import gaussian_log_prob
+    m1, s1 = new_skill_distribution(new_state.policy_params, batch["obs"])
+    assert float(gaussian_log_prob(m1, s1, batch["action"]).mean()) > float(
+        gaussian_log_prob(mean, std, batch["action"]).mean())
+
+
+def test_new_skill_mpo_mix_runs():
+    state = new_skill_learner_init(jax.random.PRNGKey(0), O, A, NCFG_MIX)
+    batch = _new_skill_batch(jax.random.PRNGKey(1))
+    run = _scan_updates(new_skill_learner_update, NCFG_MIX, 3)
+    new_state, metrics = run(state, batch, jax.random.PRNGKey(2))
+    assert "mpo_kl_mean" in metrics
+    assert _finite(metrics) and _finite(new_state)
+    assert float(new_state.dual_params["log_temperature"]) != NCFG_MIX.mpo_init_log_temperature
+
+
+def test_vmap_over_seeds():
+    """Both learners trace under vmap over seeds (eval_shape: traced, not compiled)."""
+    keys = jax.random.split(jax.random.PRNGKey(0), 2)
+    batch = _new_skill_batch(jax.random.PRNGKey(1))
+    states = jax.eval_shape(jax.vmap(lambda k: new_skill_learner_init(k, O, A, NCFG)), keys)
+    upd = jax.vmap(functools.partial(new_skill_learner_update, config=NCFG), in_axes=(0, None, 0))
+    _, metrics = jax.eval_shape(upd, states, batch, keys)
+    assert metrics["critic_loss"].shape == (2,)
+    sbatch = _scheduler_batch(jax.random.PRNGKey(1))
+    sstates = jax.eval_shape(jax.vmap(lambda k: scheduler_learner_init(k, O, N1, SCFG)), keys)
+    supd = jax.vmap(functools.partial(scheduler_learner_update, config=SCFG), in_axes=(0, None, 0))
+    new_states, smetrics = jax.eval_shape(supd, sstates, sbatch, keys)
+    assert smetrics["kl"].shape == (2,) and new_states.steps.shape == (2,)
+
+
+def test_updates_per_iteration():
+    assert updates_per_iteration(50, 16 * 10, 256) == 31
+    assert updates_per_iteration(1, 4, 256) == 1
