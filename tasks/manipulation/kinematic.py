@@ -235,7 +235,7 @@ def dynamics(s: KinematicState, action: jax.Array) -> KinematicState:
     candidates_dp = jnp.stack([dp, dp * jnp.array([1.0, 1.0, 0.0]), dp * jnp.array([0.0, 0.0, 1.0])])
     candidates_dyaw = jnp.stack([dyaw, dyaw, 0.0])
     cand_pinch = jnp.clip(s.pinch[None] + candidates_dp, lo, hi)
-    cand_yaw = jnp.clip(s.yaw + candidates_dyaw, -jnp.pi, jnp.pi)
+    cand_yaw = G.wrap_angle(s.yaw + candidates_dyaw)  # continuous wrist joint
     blocked, hpos, hyaw = jax.vmap(_config_blocked, in_axes=(0, 0, None, None, None, None, None, None))(
         cand_pinch, cand_yaw, aperture, held, rel_pos, rel_yaw, cube_pos, cube_yaw
     )
@@ -250,7 +250,7 @@ def dynamics(s: KinematicState, action: jax.Array) -> KinematicState:
     cube_yaw = jnp.where(holding & any_ok, cube_yaw.at[hidx].set(hyaw[choice]), cube_yaw)
     cube_yaw = G.wrap_angle(cube_yaw)
 
-    vel = jnp.concatenate([(pinch - s.pinch) / dt, ((yaw - s.yaw) / dt)[None], ((aperture - s.aperture) / dt)[None]])
+    vel = jnp.concatenate([(pinch - s.pinch) / dt, (G.wrap_angle(yaw - s.yaw) / dt)[None], ((aperture - s.aperture) / dt)[None]])
     return KinematicState(pinch, yaw, aperture, vel, cube_pos, cube_yaw, held)
 
 

@@ -12,6 +12,7 @@ Observation vector (size ``OBS_SIZE`` = 60), in this order:
 entry                  size  meaning
 =====================  ====  =====================================================================
 joint_pos              4     gripper joints: slide x, slide y, slide z (= pinch position), wrist yaw
+                             (a continuous joint, reported wrapped to [-π, π))
 joint_vel              4     their velocities (m/s, rad/s)
 pinch_pose             7     pinch position (3) + quaternion (4)
 finger_angle           1     finger aperture: distance between the finger pads (m), 0 = closed

@@ -119,12 +119,15 @@ def _approach(v: _View, c: int, prm: ControllerParams, close: bool):
     return _action(v, target, yaw_t, finger, prm)
 
 
-def _place(v: _View, c: int, target_xy, target_z, target_cube_yaw, prm: ControllerParams, release: bool):
+def _place(v: _View, c: int, target_xy, target_z, target_cube_yaw, prm: ControllerParams, release: bool,
+           grip_axis=None):
     """Carry held cube c so that its centre reaches (target_xy, target_z) with the given yaw;
-    open the fingers there if ``release``."""
+    open the fingers there if ``release``. ``grip_axis``: the gripper's x axis direction (mod π)."""
     cube = v.cubes[c]
     d_cube_yaw = G.wrap_quarter(target_cube_yaw - v.cube_yaw[c])
     yaw_t = v.yaw + d_cube_yaw
+    if grip_axis is not None:
+        yaw_t = v.yaw + G.wrap_angle(2.0 * (grip_axis - v.yaw)) / 2.0
     safe_cube_z = jnp.maximum(v.top(exclude=(c,)) + L.CUBE_HALF + prm.clearance, target_z)
     dxy_vec = target_xy - cube[:2]
     over = (jnp.linalg.norm(dxy_vec) <= prm.xy_tol) & (jnp.abs(d_cube_yaw) <= prm.yaw_tol)
@@ -247,12 +250,16 @@ def pyramid(prm: ControllerParams, obs, key):
     """Put yellow beside blue (faces aligned), then green on top of both, then leave."""
     g, y, b = (L.CUBE_INDEX[n] for n in ("green", "yellow", "blue"))
     v = _View(obs)
-    # Yellow goes next to blue along the gripper's x axis (the pads never pass between the cubes),
-    # on the side nearer the basket centre.
-    yaw_g = v.yaw + G.wrap_quarter(v.cube_yaw[b] - v.cube_yaw[y])
-    axis = jnp.stack([jnp.cos(yaw_g), jnp.sin(yaw_g)])
-    sign = jnp.where(jnp.dot(axis, -v.cubes[b, :2]) >= 0, 1.0, -1.0)
-    beside_xy = v.cubes[b, :2] + sign * PYRAMID_GAP * axis
+    # Yellow goes next to blue along one of blue's face normals, carried with the gripper's x axis
+    # along that normal (the pads never pass between the cubes): of the four sides, the one
+    # farthest from green and the basket walls.
+    angles = v.cube_yaw[b] + jnp.arange(4) * (jnp.pi / 2)
+    dirs = jnp.stack([jnp.cos(angles), jnp.sin(angles)], axis=-1)  # [4, 2]
+    spots = v.cubes[b, :2] + PYRAMID_GAP * dirs
+    wall = (L.BASKET_HALF - L.CUBE_HALF * 1.5) - jnp.max(jnp.abs(spots), axis=-1)
+    from_green = jnp.linalg.norm(spots - v.cubes[g, :2], axis=-1) - 0.07
+    side = jnp.argmax(jnp.minimum(wall, from_green))
+    beside_xy, grip_axis = spots[side], angles[side]
     d_yb = v.cubes[y] - v.cubes[b]
     base_ok = (
         (jnp.linalg.norm(d_yb[:2]) <= 0.06)
@@ -265,7 +272,7 @@ def pyramid(prm: ControllerParams, obs, key):
     top_ok = (jnp.linalg.norm(d_g[:2]) <= 0.01) & (jnp.abs(d_g[2] - L.CUBE_SIZE) <= 0.006) & ~v.grasp
     place_yellow = _select(
         [
-            (v.holding(y), _place(v, y, beside_xy, jnp.asarray(L.CUBE_HALF), v.cube_yaw[b], prm, True)),
+            (v.holding(y), _place(v, y, beside_xy, jnp.asarray(L.CUBE_HALF), v.cube_yaw[b], prm, True, grip_axis)),
             (_holding_other(v, y), _drop_other(v, prm)),
             (True, _approach(v, y, prm, close=True)),
         ]

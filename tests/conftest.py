@@ -1,0 +1,13 @@
+"""Shared test setup: JAX's persistent compilation cache (compiles dominate test time) and
+session-scoped fixtures so that compiled functions are shared across tests."""
+
+from __future__ import annotations
+
+import os
+
+import jax
+
+_CACHE = os.environ.get("PARALLEL_SKILLS_TEST_CACHE", os.path.join(os.path.expanduser("~"), ".cache", "parallel_skills_jax"))
+jax.config.update("jax_compilation_cache_dir", _CACHE)
+jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)

@@ -1,0 +1,173 @@
+"""Kinematic blocks domain: Brax API, scripted controllers, random policy, physical invariants."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import tasks
+from parallel_skills.evaluation import make_evaluator
+from tasks.manipulation import kinematic as K
+from tasks.manipulation import layout as L
+from tasks.manipulation import scripted
+
+SPARSE = ["lift", "stack", "pyramid", "triple_stack"]
+
+
+def test_registry_lists_tasks_and_rejects_unknown():
+    names = tasks.names()
+    for n in SPARSE + ["reach_green", "open_fingers", "lift_arm_open", "lift_arm_closed", "hover_green_on_yellow",
+                       "lift_yellow", "stack_yellow_on_blue"]:
+        assert n in names
+    with pytest.raises(ValueError, match="unknown task 'lfit'; valid tasks: .*lift"):
+        tasks.make("lfit")
+    with pytest.raises(ValueError, match="unknown physics 'bullet'"):
+        tasks.make("lift", physics="bullet")
+
+
+def test_brax_api_jit_vmap():
+    from brax.envs.base import Env, State
+
+    env = tasks.make("stack", episode_length=5)
+    assert isinstance(env, Env)
+    assert env.observation_size == L.OBS_SIZE == 60 and env.action_size == L.ACTION_SIZE == 5
+    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 4))
+    assert isinstance(state, State)
+    assert state.obs.shape == (4, 60)
+    step = jax.jit(jax.vmap(env.step))
+    for t in range(5):
+        state = step(state, jnp.zeros((4, 5)))
+        assert state.obs.shape == (4, 60) and state.reward.shape == (4,)
+        assert set(state.metrics) >= {"success", "reward"}
+    np.testing.assert_array_equal(state.done, 1.0)  # time limit: done and truncation, no auto-reset
+    np.testing.assert_array_equal(state.info["truncation"], 1.0)
+
+
+def test_observation_layout_matches_state():
+    env = tasks.make("lift")
+    s = env.reset(jax.random.PRNGKey(3))
+    ps, obs = s.pipeline_state, np.asarray(s.obs)
+    np.testing.assert_allclose(obs[L.PINCH_POS], ps.pinch, atol=1e-7)
+    np.testing.assert_allclose(obs[L.cube_pos("yellow")], ps.cube_pos[1], atol=1e-7)
+    assert obs[L.FINGER] == pytest.approx(L.APERTURE_OPEN)
+    assert obs[L.GRASP] == 0.0
+    # Relative pose: pinch frame (gripper yaw 0 at reset): difference of positions.
+    np.testing.assert_allclose(obs[L.cube_rel_pos("blue")], ps.cube_pos[2] - ps.pinch, atol=1e-6)
+    # Quaternions are unit.
+    assert np.linalg.norm(obs[L.cube_quat("green")]) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_reset_cubes_on_floor_not_overlapping():
+    env = tasks.make("lift")
+    s = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(1), 256)).pipeline_state
+    np.testing.assert_allclose(s.cube_pos[..., 2], L.CUBE_HALF)
+    assert np.all(np.abs(s.cube_pos[..., :2]) <= K.RESET_CUBE_RANGE)
+    assert not np.any(jax.vmap(K.cubes_interpenetrate)(s))
+
+
+# Each scripted controller on its own task over 64 random initial states (issue #2 thresholds).
+CONTROLLERS = [
+    ("reach_green", "reach_green", 0.9), ("reach_yellow", "reach_yellow", 0.9), ("reach_blue", "reach_blue", 0.9),
+    ("open_fingers", "open_fingers", 0.9), ("lift_arm_open", "lift_arm_open", 0.9),
+    ("lift_arm_closed", "lift_arm_closed", 0.9),
+    ("lift", "lift_green", 0.9), ("lift_yellow", "lift_yellow", 0.9), ("lift_blue", "lift_blue", 0.9),
+    ("hover_green_on_yellow", "hover_green_on_yellow", 0.9), ("hover_yellow_on_blue", "hover_yellow_on_blue", 0.9),
+    ("stack", "stack_green_on_yellow", 0.85), ("stack_yellow_on_blue", "stack_yellow_on_blue", 0.85),
+    ("pyramid", "pyramid", 0.8), ("triple_stack", "triple_stack", 0.8),
+]
+
+
+@pytest.mark.parametrize("task,controller,threshold", CONTROLLERS)
+def test_scripted_controller_solves_its_task(task, controller, threshold):
+    env = tasks.make(task)
+    result = make_evaluator(env, scripted.get(controller), 64)(jax.random.PRNGKey(7))
+    assert float(result["success"].mean()) >= threshold
+
+
+@pytest.fixture(scope="session")
+def random_rollout():
+    """64 episodes × 600 steps of uniform random actions on each sparse task."""
+    def random_policy(obs, key):
+        return jax.random.uniform(key, (L.ACTION_SIZE,), minval=-1.0, maxval=1.0)
+
+    return {t: make_evaluator(tasks.make(t), random_policy, 64)(jax.random.PRNGKey(11)) for t in SPARSE}
+
+
+@pytest.mark.parametrize("task", SPARSE)
+def test_random_policy_scores_about_zero(random_rollout, task):
+    assert float(random_rollout[task]["success"].mean()) <= 0.05
+
+
+def _invariant_rollout(num_envs=32, length=300, noise_prob=0.3):
+    """Steps a mix of noisy scripted stacking and random actions (to visit grasps, carries,
+    releases and collisions), recording violations of the domain's invariants."""
+    env = tasks.make("triple_stack", episode_length=length)
+    ctl = jax.vmap(scripted.get("triple_stack"))
+
+    def run(key):
+        k0, k1 = jax.random.split(key)
+        state = jax.vmap(env.reset)(jax.random.split(k0, num_envs))
+
+        def body(state, k):
+            ka, kb, kc = jax.random.split(k, 3)
+            rand = jax.random.uniform(ka, (num_envs, 5), minval=-1.0, maxval=1.0)
+            noisy = ctl(state.obs, None) + 0.5 * jax.random.normal(kb, (num_envs, 5))
+            use_rand = jax.random.uniform(kc, (num_envs, 1)) < noise_prob
+            state = jax.vmap(env.step)(state, jnp.where(use_rand, rand, noisy))
+            s = state.pipeline_state
+            cubes_bad = jax.vmap(K.cubes_interpenetrate)(s)
+            gripper_bad = jax.vmap(_gripper_in_cube)(s)
+            nonfinite = ~jnp.all(jnp.isfinite(state.obs), axis=-1) | ~jnp.isfinite(state.reward)
+            below = jnp.any(s.cube_pos[..., 2] < L.CUBE_HALF - K.EPS, axis=-1)
+            return state, (cubes_bad, gripper_bad, nonfinite, below, s.held >= 0)
+
+        _, out = jax.lax.scan(body, state, jax.random.split(k1, length))
+        return out
+
+    return jax.jit(run)
+
+
+def _gripper_in_cube(s):
+    cube_cs = jnp.stack([jnp.cos(s.cube_yaw), jnp.sin(s.cube_yaw)], -1)
+    held = (jnp.arange(L.NUM_CUBES) == s.held) & (s.held >= 0)
+    return K._gripper_hits_cubes(s.pinch, s.yaw, s.aperture, s.cube_pos, cube_cs, held)
+
+
+@pytest.fixture(scope="session")
+def invariant_rollout():
+    return _invariant_rollout()
+
+
+@settings(max_examples=5, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1))
+def test_property_no_interpenetration_no_nonfinite(invariant_rollout, seed):
+    cubes_bad, gripper_bad, nonfinite, below, holding = invariant_rollout(jax.random.PRNGKey(seed))
+    assert not np.any(cubes_bad), "cubes interpenetrate"
+    assert not np.any(gripper_bad), "gripper inside a cube"
+    assert not np.any(nonfinite), "non-finite observation or reward"
+    assert not np.any(below), "cube below the floor"
+    assert np.any(holding), "the rollout never grasped: it does not exercise carrying"
+
+
+def test_nonfinite_action_is_ignored():
+    env = tasks.make("lift")
+    s = env.reset(jax.random.PRNGKey(0))
+    s2 = env.step(s, jnp.array([jnp.nan, jnp.inf, 0.0, 0.0, 0.0]))
+    assert np.all(np.isfinite(s2.obs))
+    np.testing.assert_allclose(s2.pipeline_state.pinch, s.pipeline_state.pinch)
+
+
+def test_release_onto_cube_stacks_and_off_edge_falls_beside():
+    # Green held over yellow, centred: released, it rests on yellow (z = 0.06).
+    base = K.sample_initial_state(jax.random.PRNGKey(0))
+    cube_pos = jnp.array([[0.0, 0.0, 0.07], [0.0, 0.0, 0.02], [0.07, 0.07, 0.02]])
+    s = base.replace(cube_pos=cube_pos, cube_yaw=jnp.zeros(3), held=jnp.asarray(-1))
+    out = K._settle(0, s.cube_pos, s.cube_yaw)
+    np.testing.assert_allclose(out[0], [0.0, 0.0, 0.06], atol=1e-6)
+    # Released mostly beside yellow (centre off its footprint): it lands on the floor, no overlap.
+    cube_pos = cube_pos.at[0].set(jnp.array([0.03, 0.0, 0.07]))
+    out = K._settle(0, cube_pos, jnp.zeros(3))
+    assert float(out[0, 2]) == pytest.approx(L.CUBE_HALF)
+    assert not bool(K.cubes_interpenetrate(s.replace(cube_pos=out)))
