@@ -1,0 +1,201 @@
+"""Skills: frozen pretrained behaviours the scheduler sequences (paper §4, set S).
+
+A ``Skill`` is a pure function ``apply(params, obs [O], key) -> action [A]`` plus its (possibly
+empty) parameters. ``Skill.from_fn`` wraps any pure ``fn(obs, key) -> action`` (scripted
+controllers, other libraries' policies); ``Skill.load`` / ``Skill.save`` read and write the
+project's ``.npz`` + JSON sidecar format for Gaussian-MLP skills (the new-skill network).
+
+``SkillSet`` runs the N frozen skills and the new skill for a batch and selects per env: skills
+with the same network architecture are stacked and run with one ``vmap`` over their parameters.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from typing import Any, Callable, Optional, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+Params = Any
+
+
+def _no_params_apply(fn):
+    def apply(params, obs, key):
+        del params
+        return fn(obs, key)
+
+    return apply
+
+
+@dataclasses.dataclass(frozen=True)
+class Skill:
+    """A frozen skill. ``apply(params, obs [O], key) -> action [A]`` acts on one observation.
+
+    ``arch`` names the network architecture (skills with equal non-empty ``arch`` and parameter
+    shapes are stacked and vmapped together); ``metadata`` is the JSON sidecar content.
+    """
+
+    name: str
+    apply: Callable[[Params, jax.Array, jax.Array], jax.Array]
+    params: Params = None
+    arch: Optional[str] = None
+    metadata: dict = dataclasses.field(default_factory=dict)
+
+    @staticmethod
+    def from_fn(name: str, fn: Callable[[jax.Array, jax.Array], jax.Array], **metadata) -> "Skill":
+        """Wrap a pure ``fn(obs, key) -> action`` (one observation) as a skill."""
+        return Skill(name=name, apply=_no_params_apply(fn), params=None, arch=None, metadata=dict(metadata))
+
+    @staticmethod
+    def gaussian_mlp(name: str, params: Params, action_size: int, hidden: Sequence[int], **metadata) -> "Skill":
+        """A skill from new-skill (Gaussian MLP) parameters; acts with the mean action."""
+        from parallel_skills import networks
+
+        net = networks.GaussianPolicy(action_size=action_size, hidden=tuple(hidden))
+
+        def apply(p, obs, key):
+            mean, _ = net.apply(p, obs)
+            return mean
+
+        meta = dict(metadata, action_size=int(action_size), hidden=[int(h) for h in hidden])
+        return Skill(name=name, apply=apply, params=params, arch=f"gaussian_mlp{tuple(hidden)}->{action_size}",
+                     metadata=meta)
+
+    def save(self, path: str, **metadata) -> None:
+        """Write ``path`` (.npz of the parameter leaves) and ``path`` with .json (the sidecar).
+
+        Writes to temporary files and renames them, so an existing skill is never left half
+        written."""
+        if self.params is None:
+            raise ValueError(f"skill {self.name!r} has no parameters to save (scripted skills are code, not files)")
+        flat = _flatten(self.params)
+        meta = dict(self.metadata, **metadata, name=self.name, arch=self.arch)
+        base = path[:-4] if path.endswith(".npz") else path
+        tmp = base + ".tmp.npz"
+        np.savez(tmp, **flat)
+        with open(base + ".json.tmp", "w") as f:
+            json.dump(meta, f, indent=2, sort_keys=True)
+        os.replace(tmp, base + ".npz")
+        os.replace(base + ".json.tmp", base + ".json")
+
+    @staticmethod
+    def load(path: str, obs_size: Optional[int] = None, action_size: Optional[int] = None) -> "Skill":
+        """Load a Gaussian-MLP skill saved by ``save``; check sizes against a task if given."""
+        base = path[:-4] if path.endswith(".npz") else path
+        if not os.path.exists(base + ".npz"):
+            raise ValueError(f"skill file {base + '.npz'} does not exist")
+        if not os.path.exists(base + ".json"):
+            raise ValueError(f"skill sidecar {base + '.json'} does not exist (every skill .npz needs its .json)")
+        try:
+            with open(base + ".json") as f:
+                meta = json.load(f)
+            with np.load(base + ".npz") as data:
+                flat = {k: np.asarray(data[k]) for k in data.files}
+        except Exception as e:  # corrupt or truncated files
+            raise ValueError(f"cannot read skill {base}.npz/.json: {type(e).__name__}: {e}") from None
+        params = _unflatten(flat)
+        hidden, a_size = meta.get("hidden"), meta.get("action_size")
+        if hidden is None or a_size is None:
+            raise ValueError(f"skill sidecar {base}.json lacks 'hidden' or 'action_size'")
+        skill = Skill.gaussian_mlp(meta.get("name", os.path.basename(base)), jax.tree.map(jnp.asarray, params),
+                                   a_size, hidden, **{k: v for k, v in meta.items() if k not in ("hidden", "action_size", "name", "arch")})
+        o_size = meta.get("obs_size")
+        if obs_size is not None and o_size is not None and int(o_size) != int(obs_size):
+            raise ValueError(f"skill {base}.npz expects observations of size {o_size}, the task gives {obs_size}")
+        if action_size is not None and int(a_size) != int(action_size):
+            raise ValueError(f"skill {base}.npz produces actions of size {a_size}, the task takes {action_size}")
+        return skill
+
+
+def _flatten(params: Params) -> dict:
+    out = {}
+
+    def rec(prefix, node):
+        if isinstance(node, dict):
+            for k, v in node.items():
+                rec(f"{prefix}/{k}" if prefix else str(k), v)
+        else:
+            out[prefix] = np.asarray(node)
+
+    rec("", jax.tree.map(np.asarray, _to_dict(params)))
+    return out
+
+
+def _to_dict(params):
+    try:
+        from flax.core import unfreeze
+
+        return unfreeze(params)
+    except Exception:
+        return params
+
+
+def _unflatten(flat: dict) -> dict:
+    root: dict = {}
+    for key, value in flat.items():
+        node = root
+        parts = key.split("/")
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+        node[parts[-1]] = value
+    return root
+
+
+class SkillSet:
+    """The N frozen skills and the new skill, run for a batch and selected per env.
+
+    ``actions(new_skill_action [B, A], obs [B, O], skill_index [B], key) -> action [B, A]``:
+    index N is the new skill (its action is computed by the caller, e.g. sampled from the
+    learner's current policy). Frozen skills with the same ``arch`` and parameter shapes are
+    stacked and evaluated with one vmap over their parameters.
+    """
+
+    def __init__(self, skills: Sequence[Skill]):
+        self.skills = list(skills)
+        self.num_frozen = len(self.skills)
+        groups: dict = {}
+        for idx, s in enumerate(self.skills):
+            if s.arch is not None and s.params is not None:
+                sig = (s.arch, jax.tree.structure(s.params),
+                       tuple(np.shape(x) for x in jax.tree.leaves(s.params)))
+                groups.setdefault(sig, []).append(idx)
+        self._stacked = []  # (indices, apply, stacked params)
+        grouped = set()
+        for sig, idxs in groups.items():
+            if len(idxs) > 1:
+                stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *[self.skills[i].params for i in idxs])
+                self._stacked.append((idxs, self.skills[idxs[0]].apply, stacked))
+                grouped.update(idxs)
+        self._single = [i for i in range(self.num_frozen) if i not in grouped]
+
+    @property
+    def names(self) -> list[str]:
+        return [s.name for s in self.skills]
+
+    def frozen_actions(self, obs: jax.Array, key: jax.Array) -> jax.Array:
+        """Actions of every frozen skill for every env: [N, B, A]."""
+        batch = obs.shape[0]
+        keys = jax.random.split(key, self.num_frozen)
+        out: list = [None] * self.num_frozen
+        for i in self._single:
+            s = self.skills[i]
+            out[i] = jax.vmap(s.apply, in_axes=(None, 0, 0))(s.params, obs, jax.random.split(keys[i], batch))
+        for idxs, apply, stacked in self._stacked:
+            acts = jax.vmap(
+                lambda p, k: jax.vmap(apply, in_axes=(None, 0, 0))(p, obs, jax.random.split(k, batch))
+            )(stacked, keys[jnp.asarray(idxs)])
+            for j, i in enumerate(idxs):
+                out[i] = acts[j]
+        return jnp.stack(out).astype(jnp.float32)
+
+    def actions(self, new_skill_action: jax.Array, obs: jax.Array, skill_index: jax.Array, key: jax.Array):
+        """Per-env action of the selected skill (index N = the new skill): [B, A]."""
+        if self.num_frozen == 0:
+            return new_skill_action
+        frozen = self.frozen_actions(obs, key)  # [N, B, A]
+        every = jnp.concatenate([frozen, new_skill_action[None].astype(jnp.float32)], axis=0)  # [N+1, B, A]
+        return jnp.take_along_axis(every, skill_index[None, :, None], axis=0)[0]

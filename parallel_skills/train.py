@@ -1,0 +1,456 @@
+"""SkillS training: one jitted iteration = collect (lax.scan) → insert → learner updates (lax.scan).
+
+Brax-style entry point::
+
+    make_policy, params, metrics = parallel_skills.train(
+        env, skills, num_timesteps=..., num_envs=..., episode_length=..., seed=0, config=TrainConfig())
+
+``init(key)`` and ``iteration(state)`` are pure functions of their inputs (``make_trainer``), so a
+whole run is a pure function of the seed: ``jax.vmap`` over seeds works, and nothing assumes a
+single device (the env batch axis is a plain leading axis that can be sharded).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+from typing import Any, Callable, Optional, Sequence
+
+import flashbax as fbx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from parallel_skills import learners, networks
+from parallel_skills.augmentation import with_augmentation
+from parallel_skills.config import NewSkillConfig, SchedulerConfig
+from parallel_skills.counters import advance_counters
+from parallel_skills.evaluation import rollout_episodes
+from parallel_skills.skills import Skill, SkillSet
+
+log = logging.getLogger("parallel_skills")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Run-level settings. ``None`` fields take device-dependent defaults (``resolve``)."""
+
+    num_envs: Optional[int] = None  # CPU: 32, accelerator: 4096
+    unroll_length: int = 25  # env steps per env per iteration
+    replay_size: Optional[int] = None  # CPU: 300k, accelerator: 1M (paper)
+    method: str = "skills"  # "skills" (SkillS) or "scratch" (the new skill acting alone)
+    eval_episodes: int = 16
+    eval_every: int = 20  # iterations between evaluations
+    scheduler: SchedulerConfig = SchedulerConfig()
+    new_skill: NewSkillConfig = NewSkillConfig()
+
+    def __post_init__(self):
+        if self.method not in ("skills", "scratch"):
+            raise ValueError(f"method must be 'skills' or 'scratch', got {self.method!r}")
+        for name in ("unroll_length", "eval_episodes", "eval_every"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)}")
+
+
+# Learners dominate on a CPU (STACK.md: ≈1 update per env step at the paper's ratios), so the
+# CPU defaults lower samples-per-insert and batch sizes.
+CPU_DEFAULTS = dict(num_envs=32, replay_size=300_000, scheduler_spi=8.0, scheduler_batch=128,
+                    new_skill_spi=16.0, new_skill_batch=256)
+
+
+def resolve(config: TrainConfig, backend: Optional[str] = None) -> tuple[TrainConfig, list[str]]:
+    """Fill device-dependent defaults. Returns the config and human-readable notes of what was
+    chosen automatically (to log)."""
+    backend = backend or jax.default_backend()
+    notes: list[str] = []
+    cfg = config
+    if backend == "cpu":
+        if cfg.num_envs is None:
+            cfg = dataclasses.replace(cfg, num_envs=CPU_DEFAULTS["num_envs"])
+            notes.append(f"num_envs={cfg.num_envs}")
+        if cfg.replay_size is None:
+            cfg = dataclasses.replace(cfg, replay_size=CPU_DEFAULTS["replay_size"])
+            notes.append(f"replay_size={cfg.replay_size}")
+        if cfg.scheduler == SchedulerConfig():
+            cfg = dataclasses.replace(cfg, scheduler=dataclasses.replace(
+                cfg.scheduler, samples_per_insert=CPU_DEFAULTS["scheduler_spi"]))
+            notes.append(f"scheduler samples_per_insert={CPU_DEFAULTS['scheduler_spi']} (paper 100)")
+        if cfg.new_skill == NewSkillConfig():
+            cfg = dataclasses.replace(cfg, new_skill=dataclasses.replace(
+                cfg.new_skill, samples_per_insert=CPU_DEFAULTS["new_skill_spi"]))
+            notes.append(f"new-skill samples_per_insert={CPU_DEFAULTS['new_skill_spi']} (paper 50)")
+    else:
+        if cfg.num_envs is None:
+            cfg = dataclasses.replace(cfg, num_envs=4096)
+        if cfg.replay_size is None:
+            cfg = dataclasses.replace(cfg, replay_size=1_000_000)
+    return cfg, notes
+
+
+@struct.dataclass
+class ActorState:
+    """Per-env acting state. env_state: batched brax State; c/i/k_idx [B] the running skill's
+    counter, index and length index; first [B] whether the next step starts an episode."""
+
+    env_state: Any
+    c: jax.Array
+    i: jax.Array
+    k_idx: jax.Array
+    first: jax.Array
+    ep_return: jax.Array
+    ep_success: jax.Array
+
+
+@struct.dataclass
+class TrainingState:
+    scheduler: learners.SchedulerLearnerState
+    new_skill: learners.NewSkillLearnerState
+    replay: Any
+    actor: ActorState
+    key: jax.Array
+    env_steps: jax.Array
+    iteration: jax.Array
+
+
+def _finite(x):
+    return jnp.all(jnp.isfinite(x.reshape(x.shape[0], -1)), axis=-1)
+
+
+@dataclasses.dataclass(frozen=True)
+class Trainer:
+    """Pure functions of a configured run (see ``make_trainer``)."""
+
+    init: Callable[[jax.Array], TrainingState]
+    iteration: Callable[[TrainingState], tuple]
+    act: Callable  # act(actor, sched_params, new_params, key, greedy) -> (actor, transition, stats)
+    reset_actor: Callable[[jax.Array], ActorState]
+    config: TrainConfig
+    skills: tuple
+    num_skills_total: int
+    scheduler_updates: int
+    new_skill_updates: int
+    steps_per_iteration: int
+
+
+def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> Trainer:
+    """Build the pure ``init`` / ``iteration`` functions for ``environment`` and frozen ``skills``."""
+    if config.num_envs is None or config.replay_size is None:
+        raise ValueError("make_trainer needs a resolved config (see parallel_skills.train.resolve)")
+    env = environment
+    skills = [] if config.method == "scratch" else list(skills)
+    skill_set = SkillSet(skills)
+    n_total = len(skills) + 1  # frozen skills + the new skill (index N)
+    new_index = len(skills)
+    B, T = int(config.num_envs), int(config.unroll_length)
+    sc, nc = config.scheduler, config.new_skill
+    lengths = jnp.asarray(sc.skill_lengths, jnp.int32)
+    obs_size, action_size = int(env.observation_size), int(env.action_size)
+    sched_apply = learners.make_scheduler_apply(n_total, sc)
+    new_apply = learners.make_new_skill_apply(action_size, nc)
+    learn_scheduler = config.method == "skills"
+
+    steps_per_iter = B * T
+    n_sched = learners.updates_per_iteration(sc.samples_per_insert, steps_per_iter, sc.batch_size)
+    n_new = learners.updates_per_iteration(nc.samples_per_insert, steps_per_iter, nc.batch_size)
+    capacity = max(int(config.replay_size), steps_per_iter)
+    sched_buffer = fbx.make_item_buffer(capacity, 1, sc.batch_size, add_batches=True)
+    new_buffer = fbx.make_item_buffer(capacity, 1, nc.batch_size, add_batches=True)
+
+    def empty_transition():
+        f = jnp.float32
+        return dict(
+            obs=jnp.zeros((obs_size,), f), action=jnp.zeros((action_size,), f), reward=jnp.zeros((), f),
+            discount=jnp.zeros((), f), next_obs=jnp.zeros((obs_size,), f), skill=jnp.zeros((), jnp.int32),
+            k_idx=jnp.zeros((), jnp.int32), c=jnp.zeros((), jnp.int32), is_decision=jnp.zeros((), bool),
+            weight=jnp.zeros((), f),
+        )
+
+    def reset_actor(key) -> ActorState:
+        env_state = jax.vmap(env.reset)(jax.random.split(key, B))
+        zi = jnp.zeros((B,), jnp.int32)
+        return ActorState(env_state, zi, zi, zi, jnp.ones((B,), bool), jnp.zeros((B,)), jnp.zeros((B,)))
+
+    def init(key) -> TrainingState:
+        k_s, k_n, k_e, k_run = jax.random.split(key, 4)
+        return TrainingState(
+            scheduler=learners.scheduler_learner_init(k_s, obs_size, n_total, sc),
+            new_skill=learners.new_skill_learner_init(k_n, obs_size, action_size, nc),
+            replay=sched_buffer.init(empty_transition()),
+            actor=reset_actor(k_e),
+            key=k_run,
+            env_steps=jnp.zeros((), jnp.int32),
+            iteration=jnp.zeros((), jnp.int32),
+        )
+
+    def act(actor: ActorState, sched_params, new_params, key, greedy: bool = False):
+        """One env step for the batch: decide where counters expired, act, step, auto-reset."""
+        k_i, k_k, k_a, k_s, k_r = jax.random.split(key, 5)
+        obs = actor.env_state.obs
+        logits_i, logits_k = sched_apply(sched_params, obs)
+        if greedy:
+            i_new, k_new = jnp.argmax(logits_i, -1), jnp.argmax(logits_k, -1)
+        else:
+            i_new = jax.random.categorical(k_i, logits_i)
+            k_new = jax.random.categorical(k_k, logits_k)
+        if not learn_scheduler:  # from scratch: the new skill always acts
+            i_new = jnp.full_like(i_new, new_index)
+        c, i, k_idx, is_decision = advance_counters(
+            actor.c, actor.i, actor.k_idx, i_new.astype(jnp.int32), k_new.astype(jnp.int32), actor.first, sc.skill_lengths)
+        mean, std = new_apply(new_params, obs)
+        new_action = networks.deterministic_action(mean) if greedy else networks.sample_action(mean, std, k_a)
+        action = skill_set.actions(new_action, obs, i, k_s)
+        nxt = jax.vmap(env.step)(actor.env_state, action)
+        finite = _finite(nxt.obs) & jnp.isfinite(nxt.reward)
+        done = (nxt.done > 0) | ~finite
+        truncation = nxt.info["truncation"] > 0
+        reward = jnp.where(finite, nxt.reward, 0.0)
+        transition = dict(
+            obs=obs, action=action, reward=reward,
+            # Time-limit truncation bootstraps from the true last observation; termination does not.
+            discount=jnp.where((nxt.done > 0) & ~truncation, 0.0, 1.0).astype(jnp.float32),
+            next_obs=jnp.where(finite[:, None], nxt.obs, 0.0), skill=i, k_idx=k_idx, c=c,
+            is_decision=is_decision, weight=finite.astype(jnp.float32),
+        )
+        ep_return = actor.ep_return + reward
+        ep_success = jnp.maximum(actor.ep_success, nxt.metrics["success"])
+        stats = dict(
+            done=done, ep_return=ep_return, ep_success=ep_success, nonfinite=(~finite).astype(jnp.float32),
+            new_skill_active=(i == new_index).astype(jnp.float32),
+        )
+
+        def do_reset(_):
+            fresh = jax.vmap(env.reset)(jax.random.split(k_r, B))
+            return jax.tree.map(
+                lambda f, n: jnp.where(done.reshape(done.shape + (1,) * (n.ndim - 1)), f, n), fresh, nxt)
+
+        env_state = jax.lax.cond(jnp.any(done), do_reset, lambda _: nxt, None)
+        actor = ActorState(
+            env_state=env_state, c=c, i=i, k_idx=k_idx, first=done,
+            ep_return=jnp.where(done, 0.0, ep_return), ep_success=jnp.where(done, 0.0, ep_success),
+        )
+        return actor, transition, stats
+
+    def collect(ts: TrainingState, key):
+        sched_params = ts.scheduler.policy_params
+        new_params = ts.new_skill.policy_params
+
+        def body(actor, k):
+            actor, tr, st = act(actor, sched_params, new_params, k)
+            return actor, (tr, st)
+
+        actor, (traj, stats) = jax.lax.scan(body, ts.actor, jax.random.split(key, T))
+        return actor, traj, stats
+
+    def sample_scheduler_batch(replay, key):
+        b = sched_buffer.sample(replay, key).experience
+        batch = {k: b[k] for k in ("obs", "next_obs", "reward", "discount", "skill", "k_idx", "c", "is_decision", "weight")}
+        return with_augmentation(batch, sc.skill_lengths) if sc.augmentation else batch
+
+    def learn(ts: TrainingState, key):
+        k_s, k_n = jax.random.split(key)
+
+        def sched_body(state, k):
+            k1, k2 = jax.random.split(k)
+            state, m = learners.scheduler_learner_update(state, sample_scheduler_batch(ts.replay, k1), k2, sc)
+            return state, m
+
+        def new_body(state, k):
+            k1, k2 = jax.random.split(k)
+            b = new_buffer.sample(ts.replay, k1).experience
+            batch = {k_: b[k_] for k_ in ("obs", "action", "reward", "discount", "next_obs", "weight")}
+            return learners.new_skill_learner_update(state, batch, k2, nc)
+
+        size = jnp.where(ts.replay.is_full, capacity, ts.replay.current_index)
+        sched_ready = learn_scheduler & (size >= sc.min_replay_size)
+        new_ready = size >= nc.min_replay_size
+
+        def run_sched(state):
+            state, m = jax.lax.scan(sched_body, state, jax.random.split(k_s, n_sched))
+            return state, jax.tree.map(lambda x: x[-1], m)
+
+        def run_new(state):
+            state, m = jax.lax.scan(new_body, state, jax.random.split(k_n, n_new))
+            return state, jax.tree.map(lambda x: x[-1], m)
+
+        sched_zero = jax.tree.map(jnp.zeros_like, jax.eval_shape(run_sched, ts.scheduler)[1])
+        new_zero = jax.tree.map(jnp.zeros_like, jax.eval_shape(run_new, ts.new_skill)[1])
+        sched_state, sched_m = jax.lax.cond(sched_ready, run_sched, lambda s: (s, sched_zero), ts.scheduler)
+        new_state, new_m = jax.lax.cond(new_ready, run_new, lambda s: (s, new_zero), ts.new_skill)
+        return sched_state, new_state, sched_m, new_m
+
+    def iteration(ts: TrainingState):
+        key, k_collect, k_learn = jax.random.split(ts.key, 3)
+        actor, traj, stats = collect(ts, k_collect)
+        flat = jax.tree.map(lambda x: x.reshape((T * B,) + x.shape[2:]), traj)
+        replay = sched_buffer.add(ts.replay, flat)
+        ts = ts.replace(replay=replay, actor=actor)
+        sched_state, new_state, sched_m, new_m = learn(ts, k_learn)
+
+        done = stats["done"].astype(jnp.float32)
+        n_done = jnp.sum(done)
+        dec = traj["is_decision"].astype(jnp.float32)
+        metrics = {
+            "reward_mean": jnp.mean(traj["reward"]),
+            "episodes": n_done,
+            "episode_return": jnp.sum(stats["ep_return"] * done) / jnp.maximum(n_done, 1.0),
+            "episode_success": jnp.sum(stats["ep_success"] * done) / jnp.maximum(n_done, 1.0),
+            "new_skill_selection_rate": jnp.mean(stats["new_skill_active"]),
+            "nonfinite_transitions": jnp.sum(stats["nonfinite"]),
+            "skill_histogram": jnp.sum(jax.nn.one_hot(traj["skill"], n_total) * dec[..., None], axis=(0, 1)),
+            "length_histogram": jnp.sum(jax.nn.one_hot(traj["k_idx"], sc.num_lengths) * dec[..., None], axis=(0, 1)),
+            # Steps each skill acted (for usage plots: average consecutive execution per skill).
+            "skill_steps": jnp.sum(jax.nn.one_hot(traj["skill"], n_total), axis=(0, 1)),
+        }
+        metrics.update({f"scheduler/{k}": v for k, v in sched_m.items()})
+        metrics.update({f"new_skill/{k}": v for k, v in new_m.items()})
+        ts = ts.replace(scheduler=sched_state, new_skill=new_state, key=key,
+                        env_steps=ts.env_steps + steps_per_iter, iteration=ts.iteration + 1)
+        return ts, metrics
+
+    return Trainer(init=init, iteration=iteration, act=act, reset_actor=reset_actor, config=config,
+                   skills=tuple(skills), num_skills_total=n_total,
+                   scheduler_updates=n_sched if learn_scheduler else 0, new_skill_updates=n_new,
+                   steps_per_iteration=steps_per_iter)
+
+
+def make_policy_factory(action_size: int, config: TrainConfig, num_skills_total: int):
+    """``make_policy(params, which="new_skill" | "scheduler", deterministic=True)``.
+
+    ``which="new_skill"``: ``policy(obs [O], key) -> action [A]`` (Gaussian mean, or a sample).
+    ``which="scheduler"``: ``policy(obs [O], key) -> z [2] = (skill index i, length k)``, the
+    scheduler's own action (argmax, or a sample); executing z needs the skills and a counter,
+    see ``evaluate_scheduler``.
+    """
+    new_apply = learners.make_new_skill_apply(action_size, config.new_skill)
+    sched_apply = learners.make_scheduler_apply(num_skills_total, config.scheduler)
+    lengths = jnp.asarray(config.scheduler.skill_lengths, jnp.int32)
+
+    def make_policy(params, which: str = "new_skill", deterministic: bool = True):
+        if which == "new_skill":
+            p = params["new_skill"]
+
+            def policy(obs, key):
+                mean, std = new_apply(p, obs)
+                return mean if deterministic else networks.sample_action(mean, std, key)
+
+            return policy
+        if which == "scheduler":
+            p = params["scheduler"]
+
+            def policy(obs, key):
+                li, lk = sched_apply(p, obs)
+                if deterministic:
+                    i, k = jnp.argmax(li), jnp.argmax(lk)
+                else:
+                    k1, k2 = jax.random.split(key)
+                    i, k = jax.random.categorical(k1, li), jax.random.categorical(k2, lk)
+                return jnp.stack([i, lengths[k]])
+
+            return policy
+        raise ValueError(f"which must be 'new_skill' or 'scheduler', got {which!r}")
+
+    return make_policy
+
+
+def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: int):
+    """Jitted whole-episode evaluations of the new skill alone and of the scheduler alone
+    (paper App. C.3): ``eval_new(new_params, key)``, ``eval_scheduler(sched_params, new_params, key)``
+    -> dict of per-episode ``return`` / ``success``. The scheduler acts greedily (argmax z) with
+    its counters, through the trainer's own acting step."""
+    new_apply = learners.make_new_skill_apply(int(env.action_size), trainer.config.new_skill)
+
+    def eval_new(new_params, key):
+        policy = lambda obs, k: new_apply(new_params, obs)[0]  # noqa: E731 (mean action)
+        return rollout_episodes(env, policy, key, num_episodes, episode_length)
+
+    cfg = dataclasses.replace(trainer.config, num_envs=num_episodes, replay_size=num_episodes)
+    acting = make_trainer(env, trainer.skills, cfg)
+
+    def eval_scheduler(sched_params, new_params, key):
+        k0, k1 = jax.random.split(key)
+        actor = acting.reset_actor(k0)
+
+        def body(carry, k):
+            actor, ret, succ = carry
+            actor, tr, st = acting.act(actor, sched_params, new_params, k, greedy=True)
+            return (actor, ret + tr["reward"], jnp.maximum(succ, st["ep_success"])), None
+
+        z = jnp.zeros(num_episodes)
+        (_, ret, succ), _ = jax.lax.scan(body, (actor, z, z), jax.random.split(k1, episode_length))
+        return {"return": ret, "success": succ}
+
+    return jax.jit(eval_new), jax.jit(eval_scheduler)
+
+
+def train(
+    environment,
+    skills: Sequence[Skill],
+    *,
+    num_timesteps: int,
+    num_envs: Optional[int] = None,
+    episode_length: Optional[int] = None,
+    seed: int = 0,
+    config: TrainConfig = TrainConfig(),
+    progress_fn: Optional[Callable[[int, dict], None]] = None,
+    eval_env=None,
+):
+    """Train SkillS on ``environment`` (Brax env API) with frozen ``skills``.
+
+    Returns ``(make_policy, params, metrics)``: ``params`` = {"new_skill", "scheduler"} policy
+    parameters, ``metrics`` the last evaluation and training metrics (Python floats / lists).
+    ``progress_fn(env_steps, metrics)`` is called after every evaluation (Brax style).
+    """
+    if int(num_timesteps) < 1:
+        raise ValueError(f"num_timesteps must be a positive integer, got {num_timesteps}")
+    if num_envs is not None:
+        if int(num_envs) < 1:
+            raise ValueError(f"num_envs must be a positive integer, got {num_envs}")
+        config = dataclasses.replace(config, num_envs=int(num_envs))
+    config, notes = resolve(config)
+    if notes:
+        log.warning("CPU backend: smaller defaults chosen automatically: %s", ", ".join(notes))
+    episode_length = int(episode_length or getattr(environment, "episode_length", 1000))
+    for s in skills:
+        s_obs = s.metadata.get("obs_size")
+        if s_obs is not None and int(s_obs) != int(environment.observation_size):
+            raise ValueError(f"skill {s.name!r} expects observations of size {s_obs}, the env gives {environment.observation_size}")
+    trainer = make_trainer(environment, skills, config)
+    eval_env = eval_env or environment
+    eval_new, eval_sched = make_evaluators(eval_env, trainer, config.eval_episodes, episode_length)
+    iteration = jax.jit(trainer.iteration, donate_argnums=0)
+    state = jax.jit(trainer.init)(jax.random.PRNGKey(seed))
+    num_iterations = max(1, math.ceil(int(num_timesteps) / trainer.steps_per_iteration))
+    log.info("training: %d iterations x %d env steps, %d scheduler + %d new-skill updates per iteration",
+             num_iterations, trainer.steps_per_iteration, trainer.scheduler_updates, trainer.new_skill_updates)
+    metrics: dict = {}
+    t0 = time.perf_counter()
+    eval_key = jax.random.PRNGKey(seed + 10_000)
+    for it in range(num_iterations):
+        state, train_m = iteration(state)
+        last = it == num_iterations - 1
+        if (it + 1) % config.eval_every == 0 or last:
+            eval_key, k1, k2 = jax.random.split(eval_key, 3)
+            ev_new = eval_new(state.new_skill.policy_params, k1)
+            metrics = {k: _to_py(v) for k, v in train_m.items()}
+            metrics["eval/new_skill_success"] = float(jnp.mean(ev_new["success"]))
+            metrics["eval/new_skill_return"] = float(jnp.mean(ev_new["return"]))
+            if config.method == "skills":
+                ev_s = eval_sched(state.scheduler.policy_params, state.new_skill.policy_params, k2)
+                metrics["eval/scheduler_success"] = float(jnp.mean(ev_s["success"]))
+                metrics["eval/scheduler_return"] = float(jnp.mean(ev_s["return"]))
+            metrics["env_steps"] = int(state.env_steps)
+            metrics["wall_time"] = time.perf_counter() - t0
+            metrics["iteration"] = it + 1
+            if progress_fn is not None:
+                progress_fn(int(state.env_steps), metrics)
+    params = {"new_skill": state.new_skill.policy_params, "scheduler": state.scheduler.policy_params}
+    make_policy = make_policy_factory(int(environment.action_size), config, trainer.num_skills_total)
+    return make_policy, params, metrics
+
+
+def _to_py(v):
+    a = np.asarray(v)
+    return a.tolist() if a.ndim else float(a)
