@@ -40,6 +40,9 @@ class SchedulerConfig:
     dual_learning_rate: float = 1e-2
     grad_clip_norm: float = 40.0
     augmentation: bool = True
+    # Learner updates during which only the critic learns (policy and duals frozen): lets the
+    # long-horizon values of Eq. 3 propagate before policy improvement starts (0 = paper).
+    policy_warmup_updates: int = 0
 
     def __post_init__(self):
         lengths = tuple(self.skill_lengths)

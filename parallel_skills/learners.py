@@ -196,7 +196,7 @@ def scheduler_learner_update(state: SchedulerLearnerState, batch: Batch, key: ja
         li, lk = policy.apply(policy_params, obs)
         log_probs = joint_log_probs(li, lk)
         loss_m, kl = m_step_loss(log_probs, weights, log_prior, alpha, config.epsilon_kl, dmask)
-        policy_loss = loss_m + loss_temperature
+        policy_loss = (loss_m + loss_temperature) * (state.steps >= config.policy_warmup_updates)
         aux = dict(critic_loss=critic_loss, q=q, temperature=temperature, alpha=alpha, kl=kl,
                    policy_loss=policy_loss, li=li, lk=lk)
         return critic_loss + policy_loss, aux

@@ -174,10 +174,10 @@ class SchedulerCritic(nn.Module):
 
     __call__(obs [B, O], c [B, P] int, i [B, P] int, k_idx [B, P] int) -> q [B, P].
 
-    The torso runs once per state; a small head runs for each of the P queried triples on
-    [features, c / max_length, one_hot(i), one_hot(k_idx)]. The head's first layer is linear
-    in that concatenation, so it is computed exactly as W_f·f (once per state) + w_c·c/maxK +
-    E_i[i] + E_k[k] (embedding rows = one-hot matmuls), then elu and the rest of the head.
+    The torso runs once per state. A head on [features, c / max_length] (run once per queried
+    counter value) outputs one value per (i, k) pair, DQN style, and each query reads its own
+    pair: every skill and length has its own output unit, so values of different skills are not
+    forced to share a state dependence.
     """
 
     num_skills: int
@@ -192,14 +192,11 @@ class SchedulerCritic(nn.Module):
         head = tuple(self.head_hidden)
         if not head:
             raise ValueError("SchedulerCritic needs at least one head layer")
-        w0 = head[0]
-        emb_init = nn.initializers.variance_scaling(1.0, "fan_in", "uniform")
-        x = nn.Dense(w0, name="head_feat")(feat)[..., None, :]  # [B, 1, w0] (carries the bias)
+        x = nn.Dense(head[0], name="head_feat")(feat)[..., None, :]  # [B, 1, w0] (carries the bias)
         c_scaled = (jnp.asarray(c, feat.dtype) / float(self.max_length))[..., None]  # [B, P, 1]
-        x = x + nn.Dense(w0, use_bias=False, name="head_c")(c_scaled)
-        x = x + nn.Embed(self.num_skills, w0, embedding_init=emb_init, name="head_i")(i)
-        x = x + nn.Embed(self.num_lengths, w0, embedding_init=emb_init, name="head_k")(k_idx)
-        x = nn.elu(x)
+        x = nn.elu(x + nn.Dense(head[0], use_bias=False, name="head_c")(c_scaled))  # [B, P, w0]
         for n, width in enumerate(head[1:]):
             x = nn.elu(nn.Dense(width, name=f"head_{n + 1}")(x))
-        return nn.Dense(1, name="head_out")(x)[..., 0]
+        table = nn.Dense(self.num_skills * self.num_lengths, name="head_out")(x)  # [B, P, (N+1)·M]
+        pair = jnp.asarray(i, jnp.int32) * self.num_lengths + jnp.asarray(k_idx, jnp.int32)  # [B, P]
+        return jnp.take_along_axis(table, pair[..., None], axis=-1)[..., 0]

@@ -25,6 +25,7 @@ import numpy as np
 from flax import struct
 
 from parallel_skills import learners, networks
+from parallel_skills import normalization as obs_norm
 from parallel_skills.augmentation import with_augmentation
 from parallel_skills.config import NewSkillConfig, SchedulerConfig
 from parallel_skills.counters import advance_counters
@@ -110,6 +111,7 @@ class TrainingState:
     new_skill: learners.NewSkillLearnerState
     replay: Any
     actor: ActorState
+    normalizer: obs_norm.RunningStats
     key: jax.Array
     env_steps: jax.Array
     iteration: jax.Array
@@ -155,7 +157,7 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
     steps_per_iter = B * T
     n_sched = learners.updates_per_iteration(sc.samples_per_insert, steps_per_iter, sc.batch_size)
     n_new = learners.updates_per_iteration(nc.samples_per_insert, steps_per_iter, nc.batch_size)
-    capacity = max(int(config.replay_size), steps_per_iter)
+    capacity = max(int(config.replay_size), steps_per_iter, sc.batch_size, nc.batch_size)
     sched_buffer = fbx.make_item_buffer(capacity, 1, sc.batch_size, add_batches=True)
     new_buffer = fbx.make_item_buffer(capacity, 1, nc.batch_size, add_batches=True)
 
@@ -180,16 +182,19 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
             new_skill=learners.new_skill_learner_init(k_n, obs_size, action_size, nc),
             replay=sched_buffer.init(empty_transition()),
             actor=reset_actor(k_e),
+            normalizer=obs_norm.init(obs_size),
             key=k_run,
             env_steps=jnp.zeros((), jnp.int32),
             iteration=jnp.zeros((), jnp.int32),
         )
 
-    def act(actor: ActorState, sched_params, new_params, key, greedy: bool = False):
-        """One env step for the batch: decide where counters expired, act, step, auto-reset."""
+    def act(actor: ActorState, sched_params, new_params, normalizer, key, greedy: bool = False):
+        """One env step for the batch: decide where counters expired, act, step, auto-reset.
+        Frozen skills see raw observations; the scheduler and the new skill normalised ones."""
         k_i, k_k, k_a, k_s, k_r = jax.random.split(key, 5)
         obs = actor.env_state.obs
-        logits_i, logits_k = sched_apply(sched_params, obs)
+        nobs = obs_norm.normalize(normalizer, obs)
+        logits_i, logits_k = sched_apply(sched_params, nobs)
         if greedy:
             i_new, k_new = jnp.argmax(logits_i, -1), jnp.argmax(logits_k, -1)
         else:
@@ -199,7 +204,7 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
             i_new = jnp.full_like(i_new, new_index)
         c, i, k_idx, is_decision = advance_counters(
             actor.c, actor.i, actor.k_idx, i_new.astype(jnp.int32), k_new.astype(jnp.int32), actor.first, sc.skill_lengths)
-        mean, std = new_apply(new_params, obs)
+        mean, std = new_apply(new_params, nobs)
         new_action = networks.deterministic_action(mean) if greedy else networks.sample_action(mean, std, k_a)
         action = skill_set.actions(new_action, obs, i, k_s)
         nxt = jax.vmap(env.step)(actor.env_state, action)
@@ -238,14 +243,20 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
         new_params = ts.new_skill.policy_params
 
         def body(actor, k):
-            actor, tr, st = act(actor, sched_params, new_params, k)
+            actor, tr, st = act(actor, sched_params, new_params, ts.normalizer, k)
             return actor, (tr, st)
 
         actor, (traj, stats) = jax.lax.scan(body, ts.actor, jax.random.split(key, T))
         return actor, traj, stats
 
-    def sample_scheduler_batch(replay, key):
-        b = sched_buffer.sample(replay, key).experience
+    def normalized(b, normalizer):
+        b = dict(b)
+        b["obs"] = obs_norm.normalize(normalizer, b["obs"])
+        b["next_obs"] = obs_norm.normalize(normalizer, b["next_obs"])
+        return b
+
+    def sample_scheduler_batch(replay, normalizer, key):
+        b = normalized(sched_buffer.sample(replay, key).experience, normalizer)
         batch = {k: b[k] for k in ("obs", "next_obs", "reward", "discount", "skill", "k_idx", "c", "is_decision", "weight")}
         return with_augmentation(batch, sc.skill_lengths) if sc.augmentation else batch
 
@@ -254,12 +265,12 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
 
         def sched_body(state, k):
             k1, k2 = jax.random.split(k)
-            state, m = learners.scheduler_learner_update(state, sample_scheduler_batch(ts.replay, k1), k2, sc)
+            state, m = learners.scheduler_learner_update(state, sample_scheduler_batch(ts.replay, ts.normalizer, k1), k2, sc)
             return state, m
 
         def new_body(state, k):
             k1, k2 = jax.random.split(k)
-            b = new_buffer.sample(ts.replay, k1).experience
+            b = normalized(new_buffer.sample(ts.replay, k1).experience, ts.normalizer)
             batch = {k_: b[k_] for k_ in ("obs", "action", "reward", "discount", "next_obs", "weight")}
             return learners.new_skill_learner_update(state, batch, k2, nc)
 
@@ -286,7 +297,8 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
         actor, traj, stats = collect(ts, k_collect)
         flat = jax.tree.map(lambda x: x.reshape((T * B,) + x.shape[2:]), traj)
         replay = sched_buffer.add(ts.replay, flat)
-        ts = ts.replace(replay=replay, actor=actor)
+        normalizer = obs_norm.update(ts.normalizer, flat["obs"], flat["weight"])
+        ts = ts.replace(replay=replay, actor=actor, normalizer=normalizer)
         sched_state, new_state, sched_m, new_m = learn(ts, k_learn)
 
         done = stats["done"].astype(jnp.float32)
@@ -329,11 +341,12 @@ def make_policy_factory(action_size: int, config: TrainConfig, num_skills_total:
     lengths = jnp.asarray(config.scheduler.skill_lengths, jnp.int32)
 
     def make_policy(params, which: str = "new_skill", deterministic: bool = True):
+        stats = params["normalizer"]
         if which == "new_skill":
             p = params["new_skill"]
 
             def policy(obs, key):
-                mean, std = new_apply(p, obs)
+                mean, std = new_apply(p, obs_norm.normalize(stats, obs))
                 return mean if deterministic else networks.sample_action(mean, std, key)
 
             return policy
@@ -341,7 +354,7 @@ def make_policy_factory(action_size: int, config: TrainConfig, num_skills_total:
             p = params["scheduler"]
 
             def policy(obs, key):
-                li, lk = sched_apply(p, obs)
+                li, lk = sched_apply(p, obs_norm.normalize(stats, obs))
                 if deterministic:
                     i, k = jnp.argmax(li), jnp.argmax(lk)
                 else:
@@ -362,20 +375,20 @@ def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: in
     its counters, through the trainer's own acting step."""
     new_apply = learners.make_new_skill_apply(int(env.action_size), trainer.config.new_skill)
 
-    def eval_new(new_params, key):
-        policy = lambda obs, k: new_apply(new_params, obs)[0]  # noqa: E731 (mean action)
+    def eval_new(new_params, normalizer, key):
+        policy = lambda obs, k: new_apply(new_params, obs_norm.normalize(normalizer, obs))[0]  # noqa: E731
         return rollout_episodes(env, policy, key, num_episodes, episode_length)
 
     cfg = dataclasses.replace(trainer.config, num_envs=num_episodes, replay_size=num_episodes)
     acting = make_trainer(env, trainer.skills, cfg)
 
-    def eval_scheduler(sched_params, new_params, key):
+    def eval_scheduler(sched_params, new_params, normalizer, key):
         k0, k1 = jax.random.split(key)
         actor = acting.reset_actor(k0)
 
         def body(carry, k):
             actor, ret, succ = carry
-            actor, tr, st = acting.act(actor, sched_params, new_params, k, greedy=True)
+            actor, tr, st = acting.act(actor, sched_params, new_params, normalizer, k, greedy=True)
             return (actor, ret + tr["reward"], jnp.maximum(succ, st["ep_success"])), None
 
         z = jnp.zeros(num_episodes)
@@ -428,17 +441,20 @@ def train(
     metrics: dict = {}
     t0 = time.perf_counter()
     eval_key = jax.random.PRNGKey(seed + 10_000)
+    acc = _Accumulator()
     for it in range(num_iterations):
         state, train_m = iteration(state)
+        acc.add(train_m)
         last = it == num_iterations - 1
         if (it + 1) % config.eval_every == 0 or last:
             eval_key, k1, k2 = jax.random.split(eval_key, 3)
-            ev_new = eval_new(state.new_skill.policy_params, k1)
-            metrics = {k: _to_py(v) for k, v in train_m.items()}
+            ev_new = eval_new(state.new_skill.policy_params, state.normalizer, k1)
+            metrics = acc.summary(train_m)
+            acc = _Accumulator()
             metrics["eval/new_skill_success"] = float(jnp.mean(ev_new["success"]))
             metrics["eval/new_skill_return"] = float(jnp.mean(ev_new["return"]))
             if config.method == "skills":
-                ev_s = eval_sched(state.scheduler.policy_params, state.new_skill.policy_params, k2)
+                ev_s = eval_sched(state.scheduler.policy_params, state.new_skill.policy_params, state.normalizer, k2)
                 metrics["eval/scheduler_success"] = float(jnp.mean(ev_s["success"]))
                 metrics["eval/scheduler_return"] = float(jnp.mean(ev_s["return"]))
             metrics["env_steps"] = int(state.env_steps)
@@ -446,9 +462,35 @@ def train(
             metrics["iteration"] = it + 1
             if progress_fn is not None:
                 progress_fn(int(state.env_steps), metrics)
-    params = {"new_skill": state.new_skill.policy_params, "scheduler": state.scheduler.policy_params}
+    params = {"new_skill": state.new_skill.policy_params, "scheduler": state.scheduler.policy_params,
+              "normalizer": state.normalizer}
     make_policy = make_policy_factory(int(environment.action_size), config, trainer.num_skills_total)
     return make_policy, params, metrics
+
+
+class _Accumulator:
+    """Training-episode statistics summed over the iterations between two reports."""
+
+    SUMMED = ("episodes", "nonfinite_transitions", "skill_histogram", "length_histogram", "skill_steps")
+
+    def __init__(self):
+        self.sums: dict = {}
+        self.weighted = {"episode_return": 0.0, "episode_success": 0.0}
+
+    def add(self, m):
+        m = jax.device_get({k: m[k] for k in self.SUMMED + tuple(self.weighted)})
+        for k in self.SUMMED:
+            self.sums[k] = self.sums.get(k, 0.0) + np.asarray(m[k], np.float64)
+        for k in self.weighted:
+            self.weighted[k] += float(m[k]) * float(m["episodes"])
+
+    def summary(self, last_metrics):
+        out = {k: _to_py(v) for k, v in last_metrics.items()}
+        out.update({k: _to_py(v) for k, v in self.sums.items()})
+        n = max(float(self.sums.get("episodes", 0.0)), 1.0)
+        for k, v in self.weighted.items():
+            out[k] = v / n
+        return out
 
 
 def _to_py(v):

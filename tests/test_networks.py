@@ -68,8 +68,8 @@ def test_q_critic_shape():
     assert net.apply(params, obs, act).shape == (3, 4)
 
 
-def test_scheduler_critic_equals_concat_head():
-    """The decomposed head equals a Dense layer on [f, c/maxK, onehot(i), onehot(k)]."""
+def test_scheduler_critic_matches_numpy_head():
+    """Q(s, c, i, k) = out[i·M + k] of an MLP head on [features, c/maxK] (one unit per pair)."""
     N1, M, maxK = 3, 2, 4
     net = SchedulerCritic(N1, M, maxK, hidden=(16, 8), head_hidden=(12,))
     B, P = 5, 4
@@ -81,15 +81,12 @@ def test_scheduler_critic_equals_concat_head():
     params = net.init(key, obs, c, i, k)
     q = np.asarray(net.apply(params, obs, c, i, k))
     assert q.shape == (B, P)
-    # Recompute directly with numpy from the params.
     p = jax.tree_util.tree_map(np.asarray, params["params"])
     from parallel_skills.networks import LayerNormMLP
     feat = np.asarray(LayerNormMLP((16, 8)).apply({"params": params["params"]["torso"]}, obs))
-    W = np.concatenate([p["head_feat"]["kernel"], p["head_c"]["kernel"],
-                        p["head_i"]["embedding"], p["head_k"]["embedding"]], axis=0)
-    x = np.concatenate([np.repeat(feat[:, None], P, 1), (np.asarray(c) / maxK)[..., None],
-                        np.eye(N1)[np.asarray(i)], np.eye(M)[np.asarray(k)]], axis=-1)
-    h = x @ W + p["head_feat"]["bias"]
+    h = (feat @ p["head_feat"]["kernel"] + p["head_feat"]["bias"])[:, None, :] \
+        + (np.asarray(c) / maxK)[..., None] * p["head_c"]["kernel"][0]
     h = np.where(h > 0, h, np.expm1(h))
-    expected = h @ p["head_out"]["kernel"][:, 0] + p["head_out"]["bias"][0]
+    table = h @ p["head_out"]["kernel"] + p["head_out"]["bias"]  # [B, P, N1*M]
+    expected = np.take_along_axis(table, (np.asarray(i) * M + np.asarray(k))[..., None], -1)[..., 0]
     np.testing.assert_allclose(q, expected, rtol=1e-4, atol=1e-5)

@@ -1,0 +1,153 @@
+"""SkillS training loop: acting-step counters across resets, transfer guard, seeds, determinism."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import tasks
+from parallel_skills import NewSkillConfig, SchedulerConfig, Skill, TrainConfig
+from parallel_skills.train import make_trainer
+from tasks.manipulation import scripted
+
+SMALL = TrainConfig(
+    num_envs=4, unroll_length=5, replay_size=2000, eval_episodes=2, eval_every=1,
+    scheduler=SchedulerConfig(skill_lengths=(2, 3), hidden=(32, 32), critic_head_hidden=(16,), batch_size=16,
+                              min_replay_size=10, samples_per_insert=4.0),
+    new_skill=NewSkillConfig(hidden=(32, 32), batch_size=16, min_replay_size=10, samples_per_insert=4.0),
+)
+
+
+def _skills():
+    return [Skill.from_fn(n, scripted.get(n)) for n in ("reach_green", "lift_arm_closed")]
+
+
+@pytest.fixture(scope="session")
+def small_trainer():
+    env = tasks.make("lift", episode_length=7)
+    trainer = make_trainer(env, _skills(), SMALL)
+    return env, trainer, jax.jit(trainer.init), jax.jit(trainer.iteration)
+
+
+def test_acting_counters_across_auto_reset(small_trainer):
+    env, trainer, init, _ = small_trainer
+    state = init(jax.random.PRNGKey(0))
+    act = jax.jit(trainer.act)
+    actor = state.actor
+    lengths = np.array(SMALL.scheduler.skill_lengths)
+    prev_c = np.zeros(4, int)
+    prev_first = np.ones(4, bool)
+    prev_i = prev_k = None
+    for t in range(20):
+        actor, tr, st = act(actor, state.scheduler.policy_params, state.new_skill.policy_params, state.normalizer,
+                            jax.random.PRNGKey(t))
+        c, dec, i, k = (np.asarray(tr[x]) for x in ("c", "is_decision", "skill", "k_idx"))
+        expected_dec = prev_first | (prev_c <= 1)
+        np.testing.assert_array_equal(dec, expected_dec)
+        np.testing.assert_array_equal(c[dec], lengths[k[dec]])  # a decision sets c = k
+        if prev_i is not None:
+            np.testing.assert_array_equal(c[~dec], prev_c[~dec] - 1)  # otherwise count down
+            np.testing.assert_array_equal(i[~dec], prev_i[~dec])
+            np.testing.assert_array_equal(k[~dec], prev_k[~dec])
+        done = np.asarray(st["done"])
+        assert done.any() == ((t + 1) % 7 == 0)  # episode length 7, synchronous envs
+        np.testing.assert_array_equal(np.asarray(actor.first), done)  # a reset forces a decision next
+        # Truncation bootstraps: discount stays 1 at the time limit.
+        np.testing.assert_array_equal(np.asarray(tr["discount"]), 1.0)
+        prev_c, prev_first, prev_i, prev_k = c, np.asarray(actor.first), i, k
+
+
+def test_iterations_under_transfer_guard(small_trainer):
+    _, trainer, init, iteration = small_trainer
+    state = init(jax.random.PRNGKey(1))
+    state, _ = iteration(state)  # compile outside the guard
+    with jax.transfer_guard("disallow"):
+        for _ in range(3):
+            state, metrics = iteration(state)
+    assert int(state.env_steps) == 4 * trainer.steps_per_iteration
+    # The learners ran (replay above its minimum) and produced finite losses.
+    m = jax.device_get(metrics)
+    assert m["new_skill/critic_loss"] > 0 and np.isfinite(m["new_skill/critic_loss"])
+    assert m["scheduler/critic_loss"] > 0 and np.isfinite(m["scheduler/critic_loss"])
+
+
+def test_same_seed_same_numbers_and_vmap_over_seeds(small_trainer):
+    _, trainer, init, iteration = small_trainer
+
+    def run(seed, n=2):
+        s = init(jax.random.PRNGKey(seed))
+        for _ in range(n):
+            s, m = iteration(s)
+        return s, m
+
+    s_a, m_a = run(3)
+    s_b, m_b = run(3)
+    for k in m_a:
+        np.testing.assert_array_equal(np.asarray(m_a[k]), np.asarray(m_b[k]))
+    s_c, _ = run(4)
+
+    keys = jnp.stack([jax.random.PRNGKey(3), jax.random.PRNGKey(4)])
+    v_init, v_iter = jax.jit(jax.vmap(trainer.init)), jax.jit(jax.vmap(trainer.iteration))
+    vs = v_init(keys)
+    for _ in range(2):
+        vs, vm = v_iter(vs)
+    # Each vmapped seed matches its own single-seed run.
+    for idx, single in ((0, s_a), (1, s_c)):
+        np.testing.assert_allclose(
+            np.asarray(vs.actor.env_state.obs[idx]), np.asarray(single.actor.env_state.obs), atol=1e-5)
+        leaves_v = jax.tree.leaves(jax.tree.map(lambda x: x[idx], vs.new_skill.policy_params))
+        leaves_s = jax.tree.leaves(single.new_skill.policy_params)
+        for a, b in zip(leaves_v, leaves_s):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-4)
+    assert not np.allclose(np.asarray(vs.actor.env_state.obs[0]), np.asarray(vs.actor.env_state.obs[1]))
+
+
+def test_train_entry_point_returns_policies():
+    from parallel_skills import train
+
+    env = tasks.make("lift", episode_length=10)
+    seen = []
+    cfg = dataclasses.replace(SMALL, eval_every=2)
+    make_policy, params, metrics = train(env, _skills(), num_timesteps=60, seed=0, config=cfg,
+                                         progress_fn=lambda n, m: seen.append(n))
+    assert seen and seen[-1] == metrics["env_steps"] >= 60
+    obs = env.reset(jax.random.PRNGKey(0)).obs
+    a = make_policy(params, "new_skill")(obs, jax.random.PRNGKey(1))
+    assert a.shape == (5,) and np.all(np.abs(np.asarray(a)) <= 1)
+    z = make_policy(params, "scheduler")(obs, jax.random.PRNGKey(1))
+    assert int(z[0]) in (0, 1, 2) and int(z[1]) in SMALL.scheduler.skill_lengths
+    for key in ("eval/new_skill_success", "eval/scheduler_success", "skill_histogram", "new_skill_selection_rate"):
+        assert key in metrics
+    with pytest.raises(ValueError, match="num_timesteps must be a positive integer"):
+        train(env, _skills(), num_timesteps=0, config=cfg)
+
+
+def test_nonfinite_transitions_are_masked():
+    """A physics blow-up (NaN observation) resets that env and never reaches the learners."""
+    from brax.envs.base import Wrapper
+
+    class Exploding(Wrapper):
+        def step(self, state, action):
+            nxt = self.env.step(state, action)
+            bad = nxt.info["steps"] == 3
+            return nxt.replace(obs=jnp.where(bad, jnp.nan, nxt.obs), reward=jnp.where(bad, jnp.nan, nxt.reward))
+
+    env = Exploding(tasks.make("lift", episode_length=7))
+    trainer = make_trainer(env, _skills(), SMALL)
+    state = jax.jit(trainer.init)(jax.random.PRNGKey(0))
+    it = jax.jit(trainer.iteration)
+    for _ in range(3):
+        state, m = it(state)
+    exp = state.replay.experience
+    n = int(state.replay.current_index)
+    for key in ("obs", "next_obs", "reward"):
+        assert np.all(np.isfinite(np.asarray(exp[key][0, :n])))
+    assert np.all(np.isfinite(np.asarray(state.normalizer.mean)))
+    leaves = jax.tree.leaves(state.new_skill.policy_params) + jax.tree.leaves(state.scheduler.critic_params)
+    assert all(np.all(np.isfinite(np.asarray(x))) for x in leaves)
+    # The blown-up transitions carry weight 0.
+    w = np.asarray(exp["weight"][0, :n])
+    # Each env blows up at its 3rd step after every reset: global steps 3, 6, 9, 12, 15.
+    assert (w == 0).sum() == 4 * 5
