@@ -52,13 +52,17 @@ class Skill:
 
     @staticmethod
     def gaussian_mlp(name: str, params: Params, action_size: int, hidden: Sequence[int], **metadata) -> "Skill":
-        """A skill from new-skill (Gaussian MLP) parameters; acts with the mean action."""
+        """A skill from new-skill (Gaussian MLP) parameters; acts with the mean action.
+
+        ``params`` = {"policy": flax variables, "obs_mean": [O], "obs_std": [O]}: observations
+        are normalised with the training run's statistics before the network."""
         from parallel_skills import networks
 
         net = networks.GaussianPolicy(action_size=action_size, hidden=tuple(hidden))
 
         def apply(p, obs, key):
-            mean, _ = net.apply(p, obs)
+            x = jnp.clip((obs - p["obs_mean"]) / p["obs_std"], -10.0, 10.0)
+            mean, _ = net.apply(p["policy"], x)
             return mean
 
         meta = dict(metadata, action_size=int(action_size), hidden=[int(h) for h in hidden])
