@@ -23,6 +23,7 @@ if not jax.config.jax_compilation_cache_dir:  # conftest.py normally sets it
     jax.config.update("jax_compilation_cache_dir", os.path.expanduser("~/.cache/parallel_skills_jax"))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
+MJX_BATCH = 8  # ≤ 8 (MJX-jax deadlock risk on 2 cores); one batch shape = one physics compile
 SPARSE_TASKS = [n for n in task_defs.names() if task_defs.get(n).kind == "sparse"]
 
 
@@ -202,3 +203,98 @@ def test_callback_env_unbatched_and_nan_reset(mujoco_env):
     assert float(s2.info["nan_reset"]) == 1.0 and float(s2.metrics["nan_resets"]) == 1.0
     assert np.all(np.isfinite(np.asarray(s2.obs))) and np.isfinite(float(s2.reward))
     assert np.all(np.isfinite(env.physics_states(s2)))
+
+
+# --- MJX (impl jax / warp) ----------------------------------------------------------------------
+@pytest.fixture
+def one_core():
+    """MJX-jax can deadlock on this 2-core CPU unless pinned to one core (shared/STACK.md)."""
+    if not hasattr(os, "sched_setaffinity"):
+        yield
+        return
+    saved = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {min(saved)})
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, saved)
+
+
+@pytest.mark.timeout(400)
+@pytest.mark.parametrize("impl", ["jax", "warp"])
+def test_mjx_sparse_tasks_reset_step_vmap(impl, one_core):
+    from tasks.manipulation.mjx_env import make_mjx_env
+
+    n = MJX_BATCH
+    keys = jax.random.split(jax.random.PRNGKey(0), n)
+    actions = jnp.tile(jnp.array([0.5, -0.5, -1.0, 0.3, -1.0]), (n, 1))
+    for name in SPARSE_TASKS:
+        env = make_mjx_env(name, impl=impl, episode_length=2)
+        assert env.backend == ("mjx" if impl == "jax" else "warp")
+        assert (env.observation_size, env.action_size) == (L.OBS_SIZE, L.ACTION_SIZE)
+        s = jax.vmap(env.reset)(keys)  # eager vmap: the shared jitted physics compiles once
+        for t in range(2):
+            s = jax.vmap(env.step)(s, actions)
+        assert s.obs.shape == (n, L.OBS_SIZE) and np.all(np.isfinite(np.asarray(s.obs)))
+        assert s.metrics["success"].shape == (n,) and set(np.unique(np.asarray(s.metrics["success"]))) <= {0.0, 1.0}
+        np.testing.assert_array_equal(np.asarray(s.info["steps"]), 2)
+        np.testing.assert_array_equal(np.asarray(s.done), 1.0)
+        np.testing.assert_array_equal(np.asarray(s.info["truncation"]), 1.0)
+        np.testing.assert_array_equal(np.asarray(s.info["nan_reset"]), 0.0)
+    # The pinch moved as commanded (two agent steps at the given velocity, minus servo lag).
+    obs0 = jax.vmap(env.reset)(keys).obs
+    moved = np.asarray(s.obs[:, L.PINCH_POS] - obs0[:, L.PINCH_POS])
+    expected = np.array([0.5, -0.5, -1.0]) * L.MAX_LINEAR_SPEED * 2 * L.CONTROL_DT
+    np.testing.assert_allclose(moved, np.broadcast_to(expected, moved.shape), atol=0.003)
+
+
+@pytest.mark.timeout(300)
+def test_mjx_nan_injection_resets(one_core):
+    from tasks.manipulation.mjx_env import make_mjx_env
+
+    n = MJX_BATCH  # the batch shape of the other MJX tests: the shared physics compiles once
+    env = make_mjx_env("stack", impl="jax", episode_length=5)
+    s = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(1), n))
+    data = s.pipeline_state
+    s = s.replace(pipeline_state=data.replace(qvel=data.qvel.at[0].set(jnp.nan)))
+    s = jax.vmap(env.step)(s, jnp.zeros((n, L.ACTION_SIZE)))
+    expected = np.zeros(n)
+    expected[0] = 1.0
+    np.testing.assert_array_equal(np.asarray(s.info["nan_reset"]), expected)
+    np.testing.assert_array_equal(np.asarray(s.metrics["nan_resets"]), expected)
+    assert np.all(np.isfinite(np.asarray(s.obs))) and np.all(np.isfinite(np.asarray(s.reward)))
+    assert np.all(np.isfinite(np.asarray(s.pipeline_state.qpos)))
+    # Non-finite actions are treated as zero, never propagated.
+    s = jax.vmap(env.step)(s, jnp.full((n, L.ACTION_SIZE), jnp.nan))
+    np.testing.assert_array_equal(np.asarray(s.info["nan_reset"]), np.zeros(n))
+    assert np.all(np.isfinite(np.asarray(s.obs)))
+
+
+@pytest.mark.timeout(300)
+def test_mjx_agrees_with_mujoco_twin(one_core):
+    """Same initial state, same (scripted lift) action sequence: MJX (float32) stays close to the
+    classic MuJoCo twin (float64) over 50 agent steps: approach, descent and the start of the grasp."""
+    from tasks.manipulation.mjx_env import make_mjx_env
+
+    env = make_mjx_env("lift_green", impl="jax", episode_length=100)
+    twin = P.MujocoTwin("lift_green")
+    obs_twin = [twin.reset(seed=2)]
+    actions = []
+    for _ in range(50):
+        actions.append(scripted_lift_np(obs_twin[-1]))
+        obs_twin.append(twin.step(actions[-1])[0])
+    twin.reset(seed=2)
+    state = P.init_states([2])[0]
+    s = env.state_from(env.data_from(state[P.QPOS], state[P.ACT]), jax.random.PRNGKey(0))
+    np.testing.assert_allclose(np.asarray(s.obs), obs_twin[0], atol=1e-6)
+    # The same batch shape as the other MJX tests (one compile of the shared physics): 8 copies.
+    s = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (MJX_BATCH,) + x.shape), s)
+    step = jax.vmap(env.step)  # eager vmap: the physics inside is jitted
+    dev = []
+    for t, a in enumerate(actions):
+        s = step(s, jnp.broadcast_to(jnp.asarray(a, jnp.float32), (MJX_BATCH, L.ACTION_SIZE)))
+        o = np.asarray(s.obs[0])
+        dev.append(max(np.abs(o[L.PINCH_POS] - obs_twin[t + 1][L.PINCH_POS]).max(),
+                       *(np.abs(o[L.cube_pos(c)] - obs_twin[t + 1][L.cube_pos(c)]).max() for c in L.CUBE_NAMES),
+                       abs(o[L.FINGER] - obs_twin[t + 1][L.FINGER])))
+    assert max(dev) < 2e-3, f"max deviation {max(dev):.2e} m"
