@@ -129,6 +129,8 @@ class Trainer:
     iteration: Callable[[TrainingState], tuple]
     act: Callable  # act(actor, sched_params, new_params, key, greedy) -> (actor, transition, stats)
     reset_actor: Callable[[jax.Array], ActorState]
+    collect_insert: Callable  # collect_insert(state, key) -> (state, trajectory, stats)
+    learn: Callable  # learn(state, key) -> (scheduler state, new-skill state, metrics, metrics)
     config: TrainConfig
     skills: tuple
     num_skills_total: int
@@ -292,13 +294,17 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
         new_state, new_m = jax.lax.cond(new_ready, run_new, lambda s: (s, new_zero), ts.new_skill)
         return sched_state, new_state, sched_m, new_m
 
-    def iteration(ts: TrainingState):
-        key, k_collect, k_learn = jax.random.split(ts.key, 3)
-        actor, traj, stats = collect(ts, k_collect)
+    def collect_insert(ts: TrainingState, key):
+        """Acting half of an iteration: T steps of the B envs, inserted into the replay."""
+        actor, traj, stats = collect(ts, key)
         flat = jax.tree.map(lambda x: x.reshape((T * B,) + x.shape[2:]), traj)
         replay = sched_buffer.add(ts.replay, flat)
         normalizer = obs_norm.update(ts.normalizer, flat["obs"], flat["weight"])
-        ts = ts.replace(replay=replay, actor=actor, normalizer=normalizer)
+        return ts.replace(replay=replay, actor=actor, normalizer=normalizer), traj, stats
+
+    def iteration(ts: TrainingState):
+        key, k_collect, k_learn = jax.random.split(ts.key, 3)
+        ts, traj, stats = collect_insert(ts, k_collect)
         sched_state, new_state, sched_m, new_m = learn(ts, k_learn)
 
         done = stats["done"].astype(jnp.float32)
@@ -322,7 +328,8 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
                         env_steps=ts.env_steps + steps_per_iter, iteration=ts.iteration + 1)
         return ts, metrics
 
-    return Trainer(init=init, iteration=iteration, act=act, reset_actor=reset_actor, config=config,
+    return Trainer(init=init, iteration=iteration, act=act, reset_actor=reset_actor,
+                   collect_insert=collect_insert, learn=learn, config=config,
                    skills=tuple(skills), num_skills_total=n_total,
                    scheduler_updates=n_sched if learn_scheduler else 0, new_skill_updates=n_new,
                    steps_per_iteration=steps_per_iter)
