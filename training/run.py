@@ -38,8 +38,40 @@ def build_parser():
     p.add_argument("--method", default="skills", choices=["skills", "scratch"])
     p.add_argument("--eval_every", type=positive_int, default=None, help="iterations between evaluations")
     p.add_argument("--eval_episodes", type=positive_int, default=32)
+    p.add_argument("--config", default=None, help="JSON file overriding TrainConfig fields, e.g. "
+                   '{"unroll_length": 25, "scheduler": {"policy_warmup_updates": 1500}, "new_skill": {"crr_mode": "indicator"}}')
     p.add_argument("--out", default=None, help="run directory (must not exist); default runs/<task>-<method>-s<seed>-<time>")
     return p
+
+
+def apply_config_file(cfg, path):
+    """Override TrainConfig fields (and nested scheduler / new_skill fields) from a JSON file."""
+    from parallel_skills import NewSkillConfig, SchedulerConfig
+
+    try:
+        with open(path) as f:
+            data = json.load(f)
+    except FileNotFoundError:
+        raise UsageError(f"config file {path} does not exist") from None
+    except (OSError, ValueError) as e:
+        raise UsageError(f"cannot read config file {path}: {e}") from None
+    if not isinstance(data, dict):
+        raise UsageError(f"config file {path} must hold a JSON object of TrainConfig fields")
+    nested = {"scheduler": SchedulerConfig, "new_skill": NewSkillConfig}
+    top = {f.name for f in dataclasses.fields(cfg)}
+    updates = {}
+    for key, value in data.items():
+        if key not in top:
+            raise UsageError(f"unknown config field {key!r} in {path}; valid: {', '.join(sorted(top))}")
+        if key in nested:
+            sub = getattr(cfg, key)
+            valid = {f.name for f in dataclasses.fields(sub)}
+            bad = sorted(set(value) - valid) if isinstance(value, dict) else ["(not an object)"]
+            if bad:
+                raise UsageError(f"unknown {key} config field(s) {bad} in {path}; valid: {', '.join(sorted(valid))}")
+            value = dataclasses.replace(sub, **{k: tuple(v) if isinstance(v, list) else v for k, v in value.items()})
+        updates[key] = value
+    return dataclasses.replace(cfg, **updates)
 
 
 def main(argv=None):
@@ -75,6 +107,8 @@ def _run(args):
     on_cpu = jax.default_backend() == "cpu"
     num_timesteps = args.num_timesteps or DEFAULT_TIMESTEPS["cpu" if on_cpu else "accelerator"]
     cfg = TrainConfig(num_envs=args.num_envs, method=args.method, eval_episodes=args.eval_episodes)
+    if args.config:
+        cfg = apply_config_file(cfg, args.config)
     resolved, notes = resolve(cfg)
     steps_per_iter = resolved.num_envs * resolved.unroll_length
     eval_every = args.eval_every or max(1, round(num_timesteps / steps_per_iter / 20))
