@@ -30,12 +30,13 @@ def rollout_episodes(env, policy: Callable, key: jax.Array, num_episodes: int, e
         action = batched_policy(state.obs, jax.random.split(step_key, num_episodes))
         state = jax.vmap(env.step)(state, action)
         ret = ret + state.reward
-        success = jnp.maximum(success, state.metrics["success"])
+        success = jnp.maximum(success, state.metrics.get("success", jnp.zeros_like(state.reward)))
         return (state, ret, success), None
 
     zeros = jnp.zeros(num_episodes)
     (state, ret, success), _ = jax.lax.scan(body, (state, zeros, zeros), jax.random.split(k_act, length))
-    return {"return": ret, "success": success, "final_success": state.metrics["success"]}
+    return {"return": ret, "success": success,
+            "final_success": state.metrics.get("success", jnp.zeros_like(state.reward))}
 
 
 def make_evaluator(env, policy: Callable, num_episodes: int, episode_length: int | None = None):

@@ -212,7 +212,8 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
         nxt = jax.vmap(env.step)(actor.env_state, action)
         finite = _finite(nxt.obs) & jnp.isfinite(nxt.reward)
         done = (nxt.done > 0) | ~finite
-        truncation = nxt.info["truncation"] > 0
+        # Envs without a time limit of their own: wrap them (e.g. brax's EpisodeWrapper).
+        truncation = nxt.info.get("truncation", jnp.zeros_like(nxt.done)) > 0
         reward = jnp.where(finite, nxt.reward, 0.0)
         transition = dict(
             obs=obs, action=action, reward=reward,
@@ -222,7 +223,7 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
             is_decision=is_decision, weight=finite.astype(jnp.float32),
         )
         ep_return = actor.ep_return + reward
-        ep_success = jnp.maximum(actor.ep_success, nxt.metrics["success"])
+        ep_success = jnp.maximum(actor.ep_success, nxt.metrics.get("success", jnp.zeros_like(nxt.reward)))
         stats = dict(
             done=done, ep_return=ep_return, ep_success=ep_success, nonfinite=(~finite).astype(jnp.float32),
             new_skill_active=(i == new_index).astype(jnp.float32),
