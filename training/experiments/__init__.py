@@ -1,0 +1,1 @@
+"""Longer experiments and diagnostics (not part of the test suite)."""
