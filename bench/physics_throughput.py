@@ -32,6 +32,9 @@ VARIANTS = {
     "default": {},
     "iter2": {"iterations": 2, "ls_iterations": 4},
     "iter1": {"iterations": 1, "ls_iterations": 4},
+    "nopalm": {"palm_collision": False},
+    "pairs6": {"max_geom_pairs": 6},
+    "pairs6_nopalm": {"max_geom_pairs": 6, "palm_collision": False},
 }
 
 
@@ -67,7 +70,8 @@ def _worker(backend: str, num_envs: int, steps: int, variant: str, cache_dir: st
     else:
         from tasks.manipulation.mjx_env import make_mjx_env
 
-        env = make_mjx_env("lift_green", impl="jax" if backend == "mjx" else "warp", **overrides)
+        extra = {"max_envs": num_envs} if backend == "warp" else {}  # warp: contact buffer for the batch
+        env = make_mjx_env("lift_green", impl="jax" if backend == "mjx" else "warp", **extra, **overrides)
 
     @jax.jit
     def run(key):

@@ -229,7 +229,7 @@ def test_mjx_sparse_tasks_reset_step_vmap(impl, one_core):
     keys = jax.random.split(jax.random.PRNGKey(0), n)
     actions = jnp.tile(jnp.array([0.5, -0.5, -1.0, 0.3, -1.0]), (n, 1))
     for name in SPARSE_TASKS:
-        env = make_mjx_env(name, impl=impl, episode_length=2)
+        env = make_mjx_env(name, impl=impl, episode_length=2, max_envs=n)
         assert env.backend == ("mjx" if impl == "jax" else "warp")
         assert (env.observation_size, env.action_size) == (L.OBS_SIZE, L.ACTION_SIZE)
         s = jax.vmap(env.reset)(keys)  # eager vmap: the shared jitted physics compiles once

@@ -46,15 +46,22 @@ def _fresh_data(data0, rng):
 _PHYSICS_CACHE: dict = {}
 
 
-def _physics(impl: str, overrides: tuple):
+WARP_CONTACTS_PER_ENV = 48  # contact buffer per env (MJX-Warp shares one buffer across the batch)
+WARP_NJMAX = 256  # constraint rows per env
+
+
+def _physics(impl: str, overrides: tuple, max_envs: int = 256):
     """(mjx model, template data, jitted agent-step physics) for one (impl, physics options),
     shared by every task: all tasks of a process compile the physics once (eager / vmapped calls;
     inside an outer jit it is inlined)."""
-    key = (impl, overrides)
+    key = (impl, overrides, max_envs if impl == "warp" else None)
     if key not in _PHYSICS_CACHE:
         mj_model, substeps = P.load_model(**dict(overrides))
         model = mjx.put_model(mj_model, impl=impl)
-        data0 = mjx.make_data(mj_model, impl=impl)  # template, made outside any trace
+        if impl == "warp":  # the contact buffer is shared by all envs of a vmapped batch
+            data0 = mjx.make_data(mj_model, impl=impl, naconmax=WARP_CONTACTS_PER_ENV * max_envs, njmax=WARP_NJMAX)
+        else:
+            data0 = mjx.make_data(mj_model, impl=impl)  # template, made outside any trace
 
         @jax.jit
         def physics(data, action, rng):
@@ -90,7 +97,7 @@ class MjxManipulationEnv(Env):
     """
 
     def __init__(self, task_name: str, impl: str = "jax", episode_length: int = L.DEFAULT_EPISODE_LENGTH,
-                 **overrides: Any):
+                 max_envs: int = 256, **overrides: Any):
         if impl not in IMPLS:
             raise ValueError(f"unknown MJX impl {impl!r}; valid: {', '.join(IMPLS)}")
         if int(episode_length) < 1:
@@ -100,7 +107,8 @@ class MjxManipulationEnv(Env):
         self.impl = impl
         self.episode_length = int(episode_length)
         self.mj_model, self.substeps = P.load_model(**overrides)  # validates the options
-        self.model, self._data0, self._physics = _physics(impl, tuple(sorted(overrides.items())))
+        self.max_envs = int(max_envs)
+        self.model, self._data0, self._physics = _physics(impl, tuple(sorted(overrides.items())), self.max_envs)
 
     # --- helpers -------------------------------------------------------------------------
     def _fresh_data(self, rng: jax.Array):
@@ -165,8 +173,10 @@ class MjxManipulationEnv(Env):
 
 
 def make_mjx_env(task_name: str, impl: str = "jax", episode_length: int = L.DEFAULT_EPISODE_LENGTH,
-                 **overrides: Any) -> MjxManipulationEnv:
+                 max_envs: int = 256, **overrides: Any) -> MjxManipulationEnv:
     """Brax-API env of task ``task_name`` (any of ``task_defs.names()``) on MJX, ``impl`` "jax" or
     "warp". ``overrides``: physics options of ``physics_np.load_model`` (timestep, substeps,
-    iterations, ls_iterations, ...)."""
-    return MjxManipulationEnv(task_name, impl=impl, episode_length=episode_length, **overrides)
+    iterations, ls_iterations, ...). ``max_envs`` (warp only): the largest vmapped batch; MJX-Warp
+    shares one contact buffer across the batch, sized ``WARP_CONTACTS_PER_ENV × max_envs``
+    (contacts beyond it are dropped with an overflow warning)."""
+    return MjxManipulationEnv(task_name, impl=impl, episode_length=episode_length, max_envs=max_envs, **overrides)

@@ -83,9 +83,18 @@ def load_model(
 
     ``timestep`` (s) defaults to the scene's 10 ms; ``substeps`` defaults to CONTROL_DT/timestep
     (their product must equal layout.CONTROL_DT). Other keyword arguments set ``model.opt``
-    fields (``iterations``, ``ls_iterations``, ``noslip_iterations``, ``impratio``).
+    fields (``iterations``, ``ls_iterations``, ``noslip_iterations``, ``impratio``); collision
+    tuning: ``palm_collision`` (default True), ``max_geom_pairs`` / ``max_contact_points`` (MJX-jax
+    limits per collision-function group, ignored by classic MuJoCo).
     """
-    model = mujoco.MjModel.from_xml_path(SCENE_PATH)
+    xml = open(SCENE_PATH).read()
+    if not options.pop("palm_collision", True):
+        xml = xml.replace('<geom name="palm" class="gripper"', '<geom name="palm" class="gripper" contype="0" conaffinity="0"')
+    mjx_limits = {k: options.pop(k) for k in ("max_geom_pairs", "max_contact_points") if k in options}
+    if mjx_limits:  # MJX-jax collision limits per geom-type pair group (classic MuJoCo ignores them)
+        numerics = "".join(f'<numeric name="{k}" data="{int(v)}"/>' for k, v in mjx_limits.items())
+        xml = xml.replace("</mujoco>", f"<custom>{numerics}</custom></mujoco>")
+    model = mujoco.MjModel.from_xml_string(xml)
     if timestep is not None:
         model.opt.timestep = float(timestep)
     if substeps is None:
