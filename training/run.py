@@ -124,8 +124,7 @@ def _run(args):
                    "train_config": dataclasses.asdict(resolved), "auto": notes}, f, indent=2, default=str)
     print(f"run dir: {out}")
     print(f"task={args.task} physics={args.physics} method={args.method} skills={names or '(none)'}")
-    if notes:
-        print("CPU backend: smaller defaults chosen automatically: " + ", ".join(notes))
+    # (train() logs the device-dependent defaults it chose.)
 
     csv_path = os.path.join(out, "metrics.csv")
     fields = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skill_return", "eval/scheduler_success",
