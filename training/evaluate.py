@@ -46,6 +46,12 @@ def main(argv=None):
         if args.physics not in tasks.PHYSICS:
             raise UsageError(f"unknown physics {args.physics!r}; valid: {', '.join(tasks.PHYSICS)}")
         overrides = {} if args.episode_length is None else {"episode_length": args.episode_length}
+        if args.physics == "mjx":
+            from tasks.manipulation.mjx_env import pin_to_one_core
+
+            pin_to_one_core()  # MJX-jax can deadlock on 2 unpinned CPU cores (STACK.md)
+        if args.physics in ("mjx", "warp"):
+            overrides["max_envs"] = args.episodes  # MJX-Warp sizes its contact buffer for the batch
         env = tasks.make(args.task, physics=args.physics, **overrides)
         policy = build_policy(args.policy, env)
 
