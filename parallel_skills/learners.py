@@ -28,7 +28,6 @@ learner steps (``optax.periodic_update``; after update n (1-based), copied when 
 
 from __future__ import annotations
 
-import math
 from typing import Callable, Dict, Tuple
 
 import flax
@@ -53,6 +52,36 @@ _MIN_LOG_DUAL = -18.0  # Acme clips log temperature / log alpha from below.
 
 def _optimizer(learning_rate: float, clip: float) -> optax.GradientTransformation:
     return optax.chain(optax.clip_by_global_norm(clip), optax.adam(learning_rate))
+
+
+def _learner_step(state, grads, config, update_duals: bool):
+    """Apply one gradient step to policy, critic (and duals), then the periodic hard target copies.
+
+    Shared by both learners: ``state`` is a Scheduler- or NewSkillLearnerState (same fields),
+    ``grads`` = (policy, critic, dual) gradients. Duals are kept ≥ exp-floor via ``_MIN_LOG_DUAL``.
+    """
+    g_pol, g_crit, g_dual = grads
+    opt = _optimizer(config.learning_rate, config.grad_clip_norm)
+    upd, policy_opt_state = opt.update(g_pol, state.policy_opt_state, state.policy_params)
+    new_policy = optax.apply_updates(state.policy_params, upd)
+    upd, critic_opt_state = opt.update(g_crit, state.critic_opt_state, state.critic_params)
+    new_critic = optax.apply_updates(state.critic_params, upd)
+    if update_duals:
+        dual_opt = optax.adam(config.dual_learning_rate)
+        upd, dual_opt_state = dual_opt.update(g_dual, state.dual_opt_state, state.dual_params)
+        new_dual = jax.tree_util.tree_map(lambda x: jnp.maximum(x, _MIN_LOG_DUAL),
+                                          optax.apply_updates(state.dual_params, upd))
+    else:
+        new_dual, dual_opt_state = state.dual_params, state.dual_opt_state
+    steps = state.steps + 1
+    return state.replace(
+        policy_params=new_policy, critic_params=new_critic,
+        target_policy_params=optax.periodic_update(new_policy, state.target_policy_params, steps,
+                                                   config.target_actor_period),
+        target_critic_params=optax.periodic_update(new_critic, state.target_critic_params, steps,
+                                                   config.target_critic_period),
+        policy_opt_state=policy_opt_state, critic_opt_state=critic_opt_state,
+        dual_params=new_dual, dual_opt_state=dual_opt_state, steps=steps)
 
 
 def updates_per_iteration(samples_per_insert: float, num_inserted: int, batch_size: int) -> int:
@@ -203,26 +232,8 @@ def scheduler_learner_update(state: SchedulerLearnerState, batch: Batch, key: ja
 
     grads, aux = jax.grad(loss_fn, argnums=(0, 1, 2), has_aux=True)(
         state.policy_params, state.critic_params, state.dual_params)
-    g_pol, g_crit, g_dual = grads
 
-    opt = _optimizer(config.learning_rate, config.grad_clip_norm)
-    dual_opt = optax.adam(config.dual_learning_rate)
-    upd, policy_opt_state = opt.update(g_pol, state.policy_opt_state, state.policy_params)
-    new_policy = optax.apply_updates(state.policy_params, upd)
-    upd, critic_opt_state = opt.update(g_crit, state.critic_opt_state, state.critic_params)
-    new_critic = optax.apply_updates(state.critic_params, upd)
-    upd, dual_opt_state = dual_opt.update(g_dual, state.dual_opt_state, state.dual_params)
-    new_dual = jax.tree_util.tree_map(lambda x: jnp.maximum(x, _MIN_LOG_DUAL),
-                                      optax.apply_updates(state.dual_params, upd))
-    steps = state.steps + 1
-    new_state = SchedulerLearnerState(
-        policy_params=new_policy, critic_params=new_critic,
-        target_policy_params=optax.periodic_update(new_policy, state.target_policy_params, steps,
-                                                   config.target_actor_period),
-        target_critic_params=optax.periodic_update(new_critic, state.target_critic_params, steps,
-                                                   config.target_critic_period),
-        policy_opt_state=policy_opt_state, critic_opt_state=critic_opt_state,
-        dual_params=new_dual, dual_opt_state=dual_opt_state, steps=steps)
+    new_state = _learner_step(state, grads, config, update_duals=True)
 
     q = aux["q"]
     metrics = dict(
@@ -375,29 +386,8 @@ def new_skill_learner_update(state: NewSkillLearnerState, batch: Batch, key: jax
 
     grads, aux = jax.grad(loss_fn, argnums=(0, 1, 2), has_aux=True)(
         state.policy_params, state.critic_params, state.dual_params)
-    g_pol, g_crit, g_dual = grads
 
-    opt = _optimizer(config.learning_rate, config.grad_clip_norm)
-    dual_opt = optax.adam(config.dual_learning_rate)
-    upd, policy_opt_state = opt.update(g_pol, state.policy_opt_state, state.policy_params)
-    new_policy = optax.apply_updates(state.policy_params, upd)
-    upd, critic_opt_state = opt.update(g_crit, state.critic_opt_state, state.critic_params)
-    new_critic = optax.apply_updates(state.critic_params, upd)
-    if use_mpo:
-        upd, dual_opt_state = dual_opt.update(g_dual, state.dual_opt_state, state.dual_params)
-        new_dual = jax.tree_util.tree_map(lambda x: jnp.maximum(x, _MIN_LOG_DUAL),
-                                          optax.apply_updates(state.dual_params, upd))
-    else:
-        new_dual, dual_opt_state = state.dual_params, state.dual_opt_state
-    steps = state.steps + 1
-    new_state = NewSkillLearnerState(
-        policy_params=new_policy, critic_params=new_critic,
-        target_policy_params=optax.periodic_update(new_policy, state.target_policy_params, steps,
-                                                   config.target_actor_period),
-        target_critic_params=optax.periodic_update(new_critic, state.target_critic_params, steps,
-                                                   config.target_critic_period),
-        policy_opt_state=policy_opt_state, critic_opt_state=critic_opt_state,
-        dual_params=new_dual, dual_opt_state=dual_opt_state, steps=steps)
+    new_state = _learner_step(state, grads, config, update_duals=use_mpo)
 
     metrics = dict(
         critic_loss=aux["critic_loss"],

@@ -28,11 +28,12 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-from brax.envs.base import Env, State
+from brax.envs.base import State
 from flax import struct
 
 from tasks.manipulation import geometry as G
 from tasks.manipulation import layout as L
+from tasks.manipulation.env_base import ManipulationEnv
 from tasks.manipulation import task_defs
 
 EPS = 1e-4  # penetration tolerance of the overlap tests (m)
@@ -295,7 +296,7 @@ def sample_initial_state(rng: jax.Array) -> KinematicState:
     )
 
 
-class KinematicBlocks(Env):
+class KinematicBlocks(ManipulationEnv):
     """Brax-API env of the kinematic blocks domain for one named task.
 
     ``step`` does not auto-reset: at the time limit ``done`` = 1 and ``info["truncation"]`` = 1
@@ -343,20 +344,8 @@ class KinematicBlocks(Env):
         return self.task.reward(inp).astype(jnp.float32), self.task.success(inp).astype(jnp.float32)
 
     @property
-    def observation_size(self) -> int:
-        return L.OBS_SIZE
-
-    @property
-    def action_size(self) -> int:
-        return L.ACTION_SIZE
-
-    @property
     def backend(self) -> str:
         return "kinematic"
-
-    @property
-    def dt(self) -> float:
-        return L.CONTROL_DT
 
 
 def cubes_interpenetrate(s: Any) -> jax.Array:

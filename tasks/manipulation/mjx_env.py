@@ -14,10 +14,11 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import mujoco
-from brax.envs.base import Env, State
+from brax.envs.base import State
 from mujoco import mjx
 
 from tasks.manipulation import layout as L
+from tasks.manipulation.env_base import ManipulationEnv
 from tasks.manipulation import physics_np as P
 from tasks.manipulation import task_defs
 
@@ -87,7 +88,7 @@ def _physics(impl: str, overrides: tuple, max_envs: int = 256):
     return _PHYSICS_CACHE[key]
 
 
-class MjxManipulationEnv(Env):
+class MjxManipulationEnv(ManipulationEnv):
     """Brax-API env of the physics manipulation domain on MJX (impl ``jax`` or ``warp``).
 
     ``pipeline_state`` is the ``mjx.Data``. ``step`` never auto-resets: at the time limit ``done``
@@ -156,20 +157,8 @@ class MjxManipulationEnv(Env):
                              metrics=metrics, info=info)
 
     @property
-    def observation_size(self) -> int:
-        return L.OBS_SIZE
-
-    @property
-    def action_size(self) -> int:
-        return L.ACTION_SIZE
-
-    @property
     def backend(self) -> str:
         return "mjx" if self.impl == "jax" else "warp"
-
-    @property
-    def dt(self) -> float:
-        return L.CONTROL_DT
 
 
 def make_mjx_env(task_name: str, impl: str = "jax", episode_length: int = L.DEFAULT_EPISODE_LENGTH,

@@ -16,9 +16,10 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from brax.envs.base import Env, State
+from brax.envs.base import State
 
 from tasks.manipulation import layout as L
+from tasks.manipulation.env_base import ManipulationEnv
 from tasks.manipulation import physics_np as P
 from tasks.manipulation import task_defs
 
@@ -42,7 +43,7 @@ def _derived_seeds(words: np.ndarray, steps: np.ndarray) -> np.ndarray:
     return (mix ^ (steps.astype(np.uint64) << np.uint64(20))) & np.uint64(0xFFFFFFFF)
 
 
-class MujocoManipulationEnv(Env):
+class MujocoManipulationEnv(ManipulationEnv):
     """Brax-API env of the physics manipulation domain stepped by classic MuJoCo in a callback.
 
     ``step`` never auto-resets: at the time limit ``done`` = 1 and ``info["truncation"]`` = 1.
@@ -138,20 +139,8 @@ class MujocoManipulationEnv(Env):
         return state.replace(pipeline_state=words, obs=obs, reward=reward, done=done, metrics=metrics, info=info)
 
     @property
-    def observation_size(self) -> int:
-        return L.OBS_SIZE
-
-    @property
-    def action_size(self) -> int:
-        return L.ACTION_SIZE
-
-    @property
     def backend(self) -> str:
         return "mujoco"
-
-    @property
-    def dt(self) -> float:
-        return L.CONTROL_DT
 
     def physics_states(self, state: State) -> np.ndarray:
         """Host copy of the float64 full physics states [..., STATE_SIZE] of a (batched) State."""
