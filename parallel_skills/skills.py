@@ -20,6 +20,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from parallel_skills.numpy_policy import read_npz_json
+
 Params = Any
 
 
@@ -90,17 +92,7 @@ class Skill:
     def load(path: str, obs_size: Optional[int] = None, action_size: Optional[int] = None) -> "Skill":
         """Load a Gaussian-MLP skill saved by ``save``; check sizes against a task if given."""
         base = path[:-4] if path.endswith(".npz") else path
-        if not os.path.exists(base + ".npz"):
-            raise ValueError(f"skill file {base + '.npz'} does not exist")
-        if not os.path.exists(base + ".json"):
-            raise ValueError(f"skill sidecar {base + '.json'} does not exist (every skill .npz needs its .json)")
-        try:
-            with open(base + ".json") as f:
-                meta = json.load(f)
-            with np.load(base + ".npz") as data:
-                flat = {k: np.asarray(data[k]) for k in data.files}
-        except Exception as e:  # corrupt or truncated files
-            raise ValueError(f"cannot read skill {base}.npz/.json: {type(e).__name__}: {e}") from None
+        flat, meta = read_npz_json(path)  # ValueError if missing, truncated or corrupt
         params = _unflatten(flat)
         hidden, a_size = meta.get("hidden"), meta.get("action_size")
         if hidden is None or a_size is None:

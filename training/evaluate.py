@@ -1,31 +1,166 @@
 """Evaluate a policy for whole episodes.
 
     python -m training.evaluate --task lift --physics kinematic --policy scripted:lift_green --episodes 64
+    python -m training.evaluate --task lift --physics mujoco --policy runs/<run>/export.npz
+    python -m training.evaluate --task lift --physics kinematic --policy runs/<run>/export.npz:scheduler
 
-``--policy``: ``scripted:NAME`` (a scripted controller, see ``tasks.manipulation.scripted``) or
-``PATH.npz`` (a Gaussian-MLP skill with its JSON sidecar). The last line printed is
-``success=<fraction> return=<mean>``.
+``--policy``:
+
+* ``scripted:NAME``: a scripted controller (see ``tasks.manipulation.scripted``);
+* ``PATH.npz``: a Gaussian-MLP skill with its JSON sidecar (``Skill.save``, e.g. ``new_skill.npz``);
+* ``DIR/export.npz`` (or ``DIR/export.npz:new_skill``): an export's new skill alone
+  (``training.export``);
+* ``DIR/export.npz:scheduler``: the export's scheduler sequencing the skills recorded in it (scripted
+  controllers, and the new skill) with its counters: it picks (i, k) greedily, runs skill i for K[k]
+  steps, then decides again.
+
+With ``--physics mujoco`` the ``.npz`` policies run on the classic-MuJoCo twin
+(``tasks.manipulation.physics_np``) with a NumPy forward pass and import no JAX, except
+``:scheduler``, which imports JAX for the scripted skills (they are JAX functions). The last line
+printed is ``success=<fraction> return=<mean>``.
 """
 
 from __future__ import annotations
 
+import os
+
+import numpy as np
+
 from training.cli import Parser, UsageError, main_guard, nonnegative_int, positive_int
 
+EXPORT_SUFFIXES = ("new_skill", "scheduler")
 
-def build_policy(spec: str, env):
+
+def parse_policy(spec: str) -> tuple[str, str, str | None]:
+    """``--policy`` -> (kind, name or path, suffix): kind "scripted", "skill" or "export"."""
+    if spec.startswith("scripted:"):
+        return "scripted", spec.split(":", 1)[1], None
+    path, sep, suffix = spec.rpartition(".npz:")
+    if sep:
+        path += ".npz"
+        if suffix not in EXPORT_SUFFIXES:
+            raise UsageError(f"unknown --policy suffix ':{suffix}'; valid after an export: "
+                             f"{', '.join(':' + s for s in EXPORT_SUFFIXES)} (e.g. DIR/export.npz:scheduler)")
+    else:
+        path, suffix = spec, None
+    if not path.endswith(".npz"):
+        raise UsageError(f"--policy must be 'scripted:NAME', a skill 'PATH.npz' or an export "
+                         f"'DIR/export.npz[:scheduler]', got {spec!r}")
+    if not os.path.exists(path):
+        raise UsageError(f"policy file {path} does not exist")
+    from parallel_skills.numpy_policy import is_export
+
+    if suffix is None and not is_export(path):
+        return "skill", path, None
+    return "export", path, suffix or "new_skill"
+
+
+# --- batches of episodes stepped from the host (NumPy policies, the scheduler's counters) -------
+class TwinBatch:
+    """``num`` episodes of the classic-MuJoCo twin (``physics_np``: the ``MujocoTwin`` step, batched
+    through one ``Stepper``). NumPy only."""
+
+    def __init__(self, task: str, num: int, seed: int):
+        from tasks.manipulation import physics_np as P
+
+        self.P, self.task, self.num = P, P.task_defs.get(task), num
+        self.stepper = P.Stepper(num_threads=min(2, num))
+        self.rng = np.random.default_rng(seed)
+
+    def reset(self):
+        self.states = self.P.init_states(self.rng.integers(2**32, size=self.num))
+        return self.P.observe_states(self.states)
+
+    def step(self, actions):
+        self.states, _ = self.stepper.step(self.states, actions, reset_seeds=self.rng.integers(2**32, size=self.num))
+        reward, success = self.P.reward_success(self.task, self.states)
+        return self.P.observe_states(self.states), reward, success
+
+    def close(self):
+        self.stepper.close()
+
+
+class JaxEnvBatch:
+    """``num`` episodes of a Brax-API env, reset and stepped by jitted vmapped calls."""
+
+    def __init__(self, env, num: int, seed: int):
+        import jax
+
+        self.jax, self.num = jax, num
+        self._reset, self._step = jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
+        self.key = jax.random.PRNGKey(seed)
+
+    def reset(self):
+        k_reset, _ = self.jax.random.split(self.key)  # the reset states of ``rollout_episodes`` for this key
+        self.state = self._reset(self.jax.random.split(k_reset, self.num))
+        return np.asarray(self.state.obs)
+
+    def step(self, actions):
+        self.state = self._step(self.state, self.jax.numpy.asarray(actions, self.jax.numpy.float32))
+        s = self.state
+        return np.asarray(s.obs), np.asarray(s.reward), np.asarray(s.metrics.get("success", np.zeros(self.num)))
+
+    def close(self):
+        pass
+
+
+def run_episodes(envs, act, length: int) -> dict:
+    """Whole episodes from the host: ``act(obs [B, O]) -> actions [B, A]``. Per-episode ``return``
+    and ``success`` (1 if the task's success test held at some step), as ``rollout_episodes``."""
+    obs = envs.reset()
+    ret = np.zeros(envs.num)
+    success = np.zeros(envs.num)
+    for _ in range(length):
+        obs, reward, succ = envs.step(act(obs))
+        ret += reward
+        success = np.maximum(success, succ)
+    envs.close()
+    return {"return": ret, "success": success}
+
+
+def scripted_skills(names, seed: int):
+    """The frozen skills of an export as ``fn(obs [B, O]) -> actions [N, B, A]`` (jitted JAX)."""
+    import jax
+
+    from parallel_skills.skills import Skill, SkillSet
     from tasks.manipulation import scripted
 
-    if spec.startswith("scripted:"):
-        name = spec.split(":", 1)[1]
-        if name not in scripted.names():
-            raise UsageError(f"unknown scripted policy {name!r}; valid: {', '.join(scripted.names())}")
-        return scripted.get(name)
-    if spec.endswith(".npz"):
-        from parallel_skills.skills import Skill
+    unknown = [n for n in names if n not in scripted.names()]
+    if unknown:
+        raise UsageError(f"the export's skills {unknown} are not scripted controllers; ':scheduler' runs scripted "
+                         f"skills (tasks.manipulation.scripted) and the new skill")
+    frozen = jax.jit(SkillSet([Skill.from_fn(n, scripted.get(n)) for n in names]).frozen_actions)
+    key, step = jax.random.PRNGKey(seed), [0]
 
-        skill = Skill.load(spec, obs_size=env.observation_size, action_size=env.action_size)
-        return lambda obs, key: skill.apply(skill.params, obs, key)
-    raise UsageError(f"--policy must be 'scripted:NAME' or a skill 'PATH.npz', got {spec!r}")
+    def actions(obs):
+        step[0] += 1
+        return np.asarray(frozen(jax.numpy.asarray(obs, jax.numpy.float32), jax.random.fold_in(key, step[0])))
+
+    return actions
+
+
+def scheduler_policy(export, seed: int):
+    """The export's scheduler running its skills (greedy choices, counters): a batched NumPy
+    ``act(obs) -> actions`` with a ``usage`` attribute (steps per skill)."""
+    from parallel_skills.numpy_policy import ScheduledPolicy
+
+    frozen = scripted_skills(export.frozen_skill_names, seed) if export.frozen_skill_names else None
+
+    def every_skill(obs):
+        new = export.new_skill(obs)[None]
+        return new if frozen is None else np.concatenate([frozen(obs), new], axis=0)
+
+    return ScheduledPolicy(export.scheduler, every_skill, export.skill_lengths)
+
+
+def jax_new_skill(export):
+    """An export's new skill as a JAX ``Skill`` (mean action)."""
+    import jax.numpy as jnp
+
+    from parallel_skills.skills import Skill, _unflatten
+
+    params = _unflatten({k: jnp.asarray(v, jnp.float32) for k, v in export.new_skill.a.items()})
+    return Skill.gaussian_mlp(export.new_skill_name, params, export.action_size, export.new_skill.hidden)
 
 
 def main(argv=None):
@@ -34,7 +169,11 @@ def main(argv=None):
     p = Parser(prog="python -m training.evaluate", description=__doc__.splitlines()[0])
     p.add_argument("--task", default="lift", help="task name (see tasks.names())")
     p.add_argument("--physics", default="kinematic", help=f"one of {', '.join(tasks.PHYSICS)}")
-    p.add_argument("--policy", required=True, help="scripted:NAME or PATH.npz")
+    p.add_argument("--policy", required=True,
+                   help="scripted:NAME, a skill PATH.npz, DIR/export.npz (the new skill alone) or "
+                        "DIR/export.npz:scheduler (the scheduler running the export's skills). With --physics "
+                        "mujoco the .npz policies import no JAX (NumPy + classic MuJoCo), except :scheduler, "
+                        "whose scripted skills are JAX functions")
     p.add_argument("--episodes", type=positive_int, default=64)
     p.add_argument("--episode_length", type=positive_int, default=None)
     p.add_argument("--seed", type=nonnegative_int, default=0)
@@ -45,27 +184,86 @@ def main(argv=None):
             raise UsageError(f"unknown task {args.task!r}; valid tasks: {', '.join(tasks.names())}")
         if args.physics not in tasks.PHYSICS:
             raise UsageError(f"unknown physics {args.physics!r}; valid: {', '.join(tasks.PHYSICS)}")
-        overrides = {} if args.episode_length is None else {"episode_length": args.episode_length}
-        if args.physics == "mjx":
-            from tasks.manipulation.mjx_env import pin_to_one_core
+        kind, target, suffix = parse_policy(args.policy)
+        if kind == "scripted":
+            from tasks.manipulation import scripted
 
-            pin_to_one_core()  # MJX-jax can deadlock on 2 unpinned CPU cores (STACK.md)
-        if args.physics in ("mjx", "warp"):
-            overrides["max_envs"] = args.episodes  # MJX-Warp sizes its contact buffer for the batch
-        env = tasks.make(args.task, physics=args.physics, **overrides)
-        policy = build_policy(args.policy, env)
+            if target not in scripted.names():
+                raise UsageError(f"unknown scripted policy {target!r}; valid: {', '.join(scripted.names())}")
+        export = None
+        if kind == "export":
+            from parallel_skills.numpy_policy import load_export
 
-        import jax
-
-        from parallel_skills.evaluation import make_evaluator
-
-        result = make_evaluator(env, policy, args.episodes)(jax.random.PRNGKey(args.seed))
-        success = float(result["success"].mean())
-        ret = float(result["return"].mean())
+            export = load_export(target)
+        if args.physics == "mujoco" and kind != "scripted":
+            result, lines = _evaluate_on_twin(args, kind, target, export, suffix)
+        else:
+            result, lines = _evaluate_on_jax_env(args, kind, target, export, suffix)
+        success = float(np.mean(result["success"]))
+        ret = float(np.mean(result["return"]))
         print(f"task={args.task} physics={args.physics} policy={args.policy} episodes={args.episodes}")
+        for line in lines:
+            print(line)
         print(f"success={success:.4f} return={ret:.3f}")
 
     main_guard(run)
+
+
+def _usage_line(export, policy) -> list[str]:
+    frac = policy.usage / max(policy.usage.sum(), 1)
+    return ["skill usage (fraction of steps): " + " ".join(f"{n}={f:.3f}" for n, f in zip(export.skill_names, frac))]
+
+
+def _evaluate_on_twin(args, kind, path, export, suffix):
+    """The classic-MuJoCo twin with NumPy policies: no JAX (``:scheduler``'s scripted skills aside)."""
+    from parallel_skills.numpy_policy import NumpyGaussianPolicy, ScheduledPolicy
+    from tasks.manipulation import layout as L
+
+    length = args.episode_length or L.DEFAULT_EPISODE_LENGTH
+    if kind == "skill":
+        policy = NumpyGaussianPolicy.load(path, obs_size=L.OBS_SIZE, action_size=L.ACTION_SIZE)
+    else:
+        export.check_task_sizes(L.OBS_SIZE, L.ACTION_SIZE)
+        policy = export.new_skill if suffix == "new_skill" else scheduler_policy(export, args.seed)
+    result = run_episodes(TwinBatch(args.task, args.episodes, args.seed), policy, length)
+    return result, (_usage_line(export, policy) if isinstance(policy, ScheduledPolicy) else [])
+
+
+def _evaluate_on_jax_env(args, kind, target, export, suffix):
+    import jax
+
+    import tasks
+
+    overrides = {} if args.episode_length is None else {"episode_length": args.episode_length}
+    if args.physics == "mjx":
+        from tasks.manipulation.mjx_env import pin_to_one_core
+
+        pin_to_one_core()  # MJX-jax can deadlock on 2 unpinned CPU cores (STACK.md)
+    if args.physics in ("mjx", "warp"):
+        overrides["max_envs"] = args.episodes  # MJX-Warp sizes its contact buffer for the batch
+    env = tasks.make(args.task, physics=args.physics, **overrides)
+    if export is not None:
+        export.check_task_sizes(env.observation_size, env.action_size)
+        if suffix == "scheduler":
+            policy = scheduler_policy(export, args.seed)
+            envs = JaxEnvBatch(env, args.episodes, args.seed)
+            return run_episodes(envs, policy, int(env.episode_length)), _usage_line(export, policy)
+        skill = jax_new_skill(export)
+    elif kind == "skill":
+        from parallel_skills.skills import Skill
+
+        skill = Skill.load(target, obs_size=env.observation_size, action_size=env.action_size)
+    if kind == "scripted":
+        from tasks.manipulation import scripted
+
+        policy = scripted.get(target)
+    else:
+        policy = lambda obs, key: skill.apply(skill.params, obs, key)  # noqa: E731
+
+    from parallel_skills.evaluation import make_evaluator
+
+    result = make_evaluator(env, policy, args.episodes)(jax.random.PRNGKey(args.seed))
+    return jax.device_get(result), []
 
 
 if __name__ == "__main__":

@@ -1,0 +1,241 @@
+"""Export (``training.export``), its NumPy forward passes, and ``training.evaluate`` on exports:
+JAX vs NumPy agreement, the scheduler's counters, a JAX-free evaluation subprocess, bad input."""
+
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import types
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from parallel_skills import NewSkillConfig, SchedulerConfig, Skill, TrainConfig, learners
+from parallel_skills import normalization as obs_norm
+from parallel_skills.numpy_policy import NumpyGaussianPolicy, ScheduledPolicy, load_export
+from parallel_skills.train import make_policy_factory
+from tasks.manipulation import layout as L
+from training import evaluate
+from training.export import ExportExistsError, write_export
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SKILLS = ["reach_green", "lift_arm_closed"]
+CONFIG = TrainConfig(scheduler=SchedulerConfig(hidden=(16, 16), skill_lengths=(2, 3, 5)),
+                     new_skill=NewSkillConfig(hidden=(16, 16)))
+
+
+def _params(obs_size, action_size, num_frozen, config=CONFIG, seed=0):
+    """What ``train`` returns, from freshly initialised (then perturbed) networks."""
+    k = jax.random.split(jax.random.PRNGKey(seed), 5)
+    obs = jnp.zeros((1, obs_size))
+    new = learners.new_skill_networks(action_size, config.new_skill)[0].init(k[0], obs)
+    sched = learners.scheduler_networks(num_frozen + 1, config.scheduler)[0].init(k[1], obs)
+
+    def perturb(p, key):  # heads start at ~0: move every weight so outputs differ across observations
+        leaves, tree = jax.tree.flatten(p)
+        keys = jax.random.split(key, len(leaves))
+        return jax.tree.unflatten(tree, [x + 1.0 * jax.random.normal(kk, x.shape) for x, kk in zip(leaves, keys)])
+
+    stats = obs_norm.update(obs_norm.init(obs_size), jax.random.normal(k[4], (200, obs_size)) * 0.2 + 0.05)
+    return {"new_skill": perturb(new, k[2]), "scheduler": perturb(sched, k[3]), "normalizer": stats}
+
+
+def _env(obs_size=L.OBS_SIZE, action_size=L.ACTION_SIZE):
+    return types.SimpleNamespace(observation_size=obs_size, action_size=action_size)
+
+
+def _digest(path):
+    return hashlib.sha256(open(path, "rb").read()).hexdigest()
+
+
+@pytest.fixture(scope="session")
+def exported(tmp_path_factory):
+    params = _params(L.OBS_SIZE, L.ACTION_SIZE, len(SKILLS))
+    out = tmp_path_factory.mktemp("run")
+    path = write_export(str(out), params, env=_env(), config=CONFIG, task="lift", physics="kinematic",
+                        metadata={"skills": SKILLS, "seed": 3, "env_steps": 1234, "command": "test"})
+    return path, params
+
+
+def test_export_files_and_sidecar(exported):
+    path, _ = exported
+    out = os.path.dirname(path)
+    assert sorted(os.listdir(out)) == ["export.json", "export.npz"]  # no temporary files left
+    meta = json.load(open(os.path.join(out, "export.json")))
+    assert (meta["task"], meta["physics"], meta["obs_size"], meta["action_size"]) == ("lift", "kinematic", 60, 5)
+    assert (meta["seed"], meta["env_steps"], meta["metadata"]) == (3, 1234, {"command": "test"})
+    assert meta["new_skill"]["hidden"] == [16, 16] and meta["scheduler"]["hidden"] == [16, 16]
+    assert meta["scheduler"]["num_skills"] == 3 and meta["scheduler"]["skill_lengths"] == [2, 3, 5]
+    assert meta["scheduler"]["skill_names"] == SKILLS + ["lift_new_skill"]
+    with np.load(path) as data:
+        assert "new_skill/obs_mean" in data.files and "scheduler/policy/params/head_i/kernel" in data.files
+
+
+def test_jax_vs_numpy_forward(exported):
+    path, params = exported
+    export = load_export(path, obs_size=60, action_size=5)
+    make_policy = make_policy_factory(5, CONFIG, len(SKILLS) + 1)
+    stats = params["normalizer"]
+    obs = stats.mean + obs_norm.std(stats) * 2.0 * jax.random.normal(jax.random.PRNGKey(7), (256, 60))
+    obs = obs.at[:8].multiply(100.0)  # some observations beyond the ±10 clip
+    keys = jax.random.split(jax.random.PRNGKey(8), 256)
+    a_jax = np.asarray(jax.vmap(make_policy(params, "new_skill"))(obs, keys))
+    z_jax = np.asarray(jax.vmap(make_policy(params, "scheduler"))(obs, keys))
+    obs64 = np.asarray(obs, np.float64)
+    diff = float(np.max(np.abs(export.new_skill(obs64) - a_jax)))
+    print(f"JAX vs NumPy new-skill action max abs diff: {diff:.3g}")
+    assert diff <= 1e-5
+    assert np.std(a_jax) > 0.05  # not trivially constant
+    z_np = export.scheduler(obs64)  # greedy (i, K[k])
+    np.testing.assert_array_equal(z_np, z_jax)
+    assert len(np.unique(z_np[:, 0])) > 1 and len(np.unique(z_np[:, 1])) > 1  # both heads vary
+    # Logits too, against the learner's own apply.
+    li, lk = learners.make_scheduler_apply(3, CONFIG.scheduler)(params["scheduler"], obs_norm.normalize(stats, obs))
+    li_np, lk_np = export.scheduler.logits(obs64)
+    assert max(np.max(np.abs(li_np - li)), np.max(np.abs(lk_np - lk))) <= 1e-4
+
+
+def test_sampled_scheduler_matches_probabilities(exported):
+    export = load_export(exported[0])
+    obs = np.repeat(export.new_skill.a["obs_mean"][None], 4000, axis=0)
+    i, k = export.scheduler.choose(obs, np.random.default_rng(0))
+    li, lk = export.scheduler.logits(obs[:1])
+    for sample, logits in ((i, li[0]), (k, lk[0])):
+        p = np.exp(logits - logits.max())
+        p /= p.sum()
+        freq = np.bincount(sample, minlength=len(p)) / len(sample)
+        assert np.max(np.abs(freq - p)) < 0.03
+
+
+def test_counters_run_skill_i_for_k_steps():
+    """At a decision pick (i, k); skill i acts K[k] steps (DESIGN "Scheduler and counters")."""
+
+    class Alternating:
+        calls = 0
+
+        def choose(self, obs, rng):
+            self.calls += 1
+            b = obs.shape[0]
+            return np.full(b, self.calls % 2), np.full(b, (self.calls - 1) % 2)  # i: 1, 0, 1, ...; k_idx: 0, 1, 0
+
+    skills = lambda obs: np.stack([np.zeros((obs.shape[0], 1)), np.ones((obs.shape[0], 1))])  # noqa: E731
+    policy = ScheduledPolicy(Alternating(), skills, skill_lengths=(2, 3))
+    acted = [int(policy(np.zeros((2, 4)))[0, 0]) for _ in range(9)]
+    assert acted == [1, 1, 0, 0, 0, 1, 1, 0, 0]
+    assert policy.usage.tolist() == [10, 8]  # env steps per skill (2 envs)
+    policy.reset(2)  # a new episode is a decision whatever the counter (skill 0 had a step left)
+    assert int(policy(np.zeros((2, 4)))[0, 0]) == 1 and policy.scheduler.calls == 5
+
+
+def test_never_overwrites_and_validates(exported, tmp_path):
+    path, params = exported
+    out = os.path.dirname(path)
+    before = {n: _digest(os.path.join(out, n)) for n in os.listdir(out)}
+    with pytest.raises(ExportExistsError, match="already exists"):
+        write_export(out, params, env=_env(), config=CONFIG, task="lift", physics="kinematic",
+                     metadata={"skills": SKILLS, "seed": 0, "env_steps": 0})
+    assert {n: _digest(os.path.join(out, n)) for n in os.listdir(out)} == before
+    with pytest.raises(ValueError, match="lacks"):
+        write_export(str(tmp_path), params, env=_env(), config=CONFIG, task="lift", physics="kinematic", metadata={})
+    with pytest.raises(ValueError, match="names 1 frozen skills, but the scheduler chooses among 3"):
+        write_export(str(tmp_path), params, env=_env(), config=CONFIG, task="lift", physics="kinematic",
+                     metadata={"skills": SKILLS[:1], "seed": 0, "env_steps": 0})
+    assert os.listdir(tmp_path) == []
+
+
+def test_evaluate_mujoco_imports_no_jax(exported, tmp_path):
+    """The export's new skill and a skill .npz on the classic-MuJoCo twin: NumPy only."""
+    path, params = exported
+    skill_path = str(tmp_path / "skill.npz")
+    Skill.gaussian_mlp("s", {"policy": params["new_skill"], "obs_mean": params["normalizer"].mean,
+                             "obs_std": obs_norm.std(params["normalizer"])}, 5, (16, 16), obs_size=60).save(skill_path)
+    script = (
+        "import sys\n"
+        "from training.evaluate import main\n"
+        f"for policy in ({path!r}, {skill_path!r}):\n"
+        "    main(['--task', 'lift', '--physics', 'mujoco', '--policy', policy, '--episodes', '2'])\n"
+        "assert 'jax' not in sys.modules, sorted(m for m in sys.modules if m.startswith('jax'))\n"
+        "print('JAX-FREE')\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=300,
+                          env=dict(os.environ, PYTHONPATH=ROOT))
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.strip().splitlines()
+    assert lines[-1] == "JAX-FREE"
+    assert sum(line.startswith("success=") for line in lines) == 2
+
+
+def test_evaluate_scheduler_runs_scripted_skills(tmp_path, capsys):
+    """``export.npz:scheduler`` whose scheduler always picks skill 0 = the scripted skill alone."""
+    params = _params(L.OBS_SIZE, L.ACTION_SIZE, len(SKILLS))
+    sched = jax.tree.map(lambda x: x, params["scheduler"])
+    head_i = sched["params"]["head_i"]
+    sched["params"]["head_i"] = {"kernel": jnp.zeros_like(head_i["kernel"]),
+                                 "bias": jnp.asarray([50.0, 0.0, 0.0])}
+    params = dict(params, scheduler=sched)
+    path = write_export(str(tmp_path), params, env=_env(), config=CONFIG, task="reach_green", physics="kinematic",
+                        metadata={"skills": SKILLS, "seed": 0, "env_steps": 0})
+    common = ["--task", "reach_green", "--physics", "kinematic", "--episodes", "3", "--episode_length", "20"]
+    evaluate.main(common + ["--policy", path + ":scheduler"])
+    out_sched = capsys.readouterr().out.strip().splitlines()
+    evaluate.main(common + ["--policy", "scripted:reach_green"])
+    out_scripted = capsys.readouterr().out.strip().splitlines()
+    assert out_sched[-2].startswith("skill usage") and "reach_green=1.000" in out_sched[-2]
+    assert out_sched[-1] == out_scripted[-1]
+    assert float(out_sched[-1].split("return=")[1]) > 0.0
+
+
+@pytest.fixture(scope="session")
+def mismatched(tmp_path_factory):
+    """An export for observations of size 7 (not the manipulation tasks' 60)."""
+    out = tmp_path_factory.mktemp("mismatch")
+    return write_export(str(out), _params(7, L.ACTION_SIZE, 0), env=_env(obs_size=7), config=CONFIG,
+                        task="other", physics="kinematic", metadata={"skills": [], "seed": 0, "env_steps": 0})
+
+
+def _bad(argv, capsys):
+    with pytest.raises(SystemExit) as e:
+        evaluate.main(argv)
+    err = capsys.readouterr().err
+    assert e.value.code == 2
+    assert len(err.strip().splitlines()) == 1 and err.startswith("error: ") and "Traceback" not in err
+    return err
+
+
+@pytest.mark.parametrize("physics", ["mujoco", "kinematic"])
+def test_evaluate_bad_input(exported, mismatched, tmp_path, capsys, physics):
+    path, _ = exported
+    truncated = tmp_path / "trunc"
+    truncated.mkdir()
+    for name in ("export.npz", "export.json"):
+        (truncated / name).write_bytes(open(os.path.join(os.path.dirname(path), name), "rb").read())
+    with open(truncated / "export.npz", "r+b") as f:
+        f.truncate(200)
+    files = [path, str(truncated / "export.npz"), mismatched]
+    before = [_digest(f) for f in files]
+    base = ["--task", "lift", "--physics", physics, "--episodes", "1", "--episode_length", "2", "--policy"]
+    assert "does not exist" in _bad(base + [str(tmp_path / "missing" / "export.npz")], capsys)
+    assert "corrupt or truncated" in _bad(base + [str(truncated / "export.npz")], capsys)
+    assert "corrupt or truncated" in _bad(base + [str(truncated / "export.npz") + ":scheduler"], capsys)
+    assert "expects observations of size 7, the task gives 60" in _bad(base + [mismatched], capsys)
+    assert "expects observations of size 7" in _bad(base + [mismatched + ":scheduler"], capsys)
+    err = _bad(base + [path + ":schedular"], capsys)
+    assert "unknown --policy suffix ':schedular'" in err and ":scheduler" in err
+    assert [_digest(f) for f in files] == before
+    assert sorted(os.listdir(os.path.dirname(path))) == ["export.json", "export.npz"]
+
+
+def test_numpy_skill_load_checks_sizes(exported, tmp_path):
+    _, params = exported
+    skill_path = str(tmp_path / "s.npz")
+    Skill.gaussian_mlp("s", {"policy": params["new_skill"], "obs_mean": params["normalizer"].mean,
+                             "obs_std": obs_norm.std(params["normalizer"])}, 5, (16, 16), obs_size=60).save(skill_path)
+    with pytest.raises(ValueError, match="expects observations of size 60, the task gives 59"):
+        NumpyGaussianPolicy.load(skill_path, obs_size=59)
+    meta = json.load(open(tmp_path / "s.json"))
+    json.dump(dict(meta, hidden=[16, 32]), open(tmp_path / "s.json", "w"))  # sidecar disagrees with the arrays
+    with pytest.raises(ValueError, match="has shape"):
+        NumpyGaussianPolicy.load(skill_path)
