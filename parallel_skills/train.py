@@ -417,12 +417,25 @@ def train(
     config: TrainConfig = TrainConfig(),
     progress_fn: Optional[Callable[[int, dict], None]] = None,
     eval_env=None,
+    initial_state: Optional[TrainingState] = None,
+    host_state: Optional[dict] = None,
+    checkpoint_fn: Optional[Callable[[TrainingState, dict], None]] = None,
+    checkpoint_every: Optional[int] = None,
 ):
     """Train SkillS on ``environment`` (Brax env API) with frozen ``skills``.
 
     Returns ``(make_policy, params, metrics)``: ``params`` = {"new_skill", "scheduler"} policy
     parameters, ``metrics`` the last evaluation and training metrics (Python floats / lists).
     ``progress_fn(env_steps, metrics)`` is called after every evaluation (Brax style).
+
+    Checkpoints and exact resumption (``training.checkpointing``): ``checkpoint_fn(state,
+    host_state)`` is called after the iteration in which ``env_steps`` crosses a multiple of
+    ``checkpoint_every`` (``None``: after every evaluation) and after the last iteration, with the
+    whole ``TrainingState`` and the host-side loop state (a JSON-able dict: iteration, env_steps,
+    the last evaluation's metrics, the training statistics accumulated since it, elapsed wall
+    time). It must finish with ``state`` before returning (the next iteration donates its
+    buffers). ``train(..., initial_state=state, host_state=host_state)`` with the same arguments
+    otherwise continues that run exactly: the evaluation keys derive from (seed, iteration).
     """
     if int(num_timesteps) < 1:
         raise ValueError(f"num_timesteps must be a positive integer, got {num_timesteps}")
@@ -442,20 +455,31 @@ def train(
     eval_env = eval_env or environment
     eval_new, eval_sched = make_evaluators(eval_env, trainer, config.eval_episodes, episode_length)
     iteration = jax.jit(trainer.iteration, donate_argnums=0)
-    state = jax.jit(trainer.init)(jax.random.PRNGKey(seed))
+    if initial_state is None:
+        state = jax.jit(trainer.init)(jax.random.PRNGKey(seed))
+    else:
+        state = initial_state
+    start = int(state.iteration)
     num_iterations = max(1, math.ceil(int(num_timesteps) / trainer.steps_per_iteration))
+    if checkpoint_every is not None and int(checkpoint_every) < 1:
+        raise ValueError(f"checkpoint_every must be a positive integer (env steps), got {checkpoint_every}")
     log.info("training: %d iterations x %d env steps, %d scheduler + %d new-skill updates per iteration",
              num_iterations, trainer.steps_per_iteration, trainer.scheduler_updates, trainer.new_skill_updates)
-    metrics: dict = {}
-    t0 = time.perf_counter()
-    eval_key = jax.random.PRNGKey(seed + 10_000)
-    acc = _Accumulator()
-    for it in range(num_iterations):
+    host_state = host_state or {}
+    metrics: dict = dict(host_state.get("metrics") or {})
+    t0 = time.perf_counter() - float(host_state.get("wall_time", 0.0))
+    eval_base_key = jax.random.PRNGKey(seed + 10_000)
+    acc = _Accumulator.from_dict(host_state.get("accumulator"))
+    spi = trainer.steps_per_iteration
+    for it in range(start, num_iterations):
         state, train_m = iteration(state)
         acc.add(train_m)
         last = it == num_iterations - 1
-        if (it + 1) % config.eval_every == 0 or last:
-            eval_key, k1, k2 = jax.random.split(eval_key, 3)
+        evaluate = (it + 1) % config.eval_every == 0 or last
+        if evaluate:
+            # Derived from (seed, iteration), not from the loop's history: a resumed run draws
+            # the same evaluation episodes as an uninterrupted one.
+            k1, k2 = jax.random.split(jax.random.fold_in(eval_base_key, it + 1))
             ev_new = eval_new(state.new_skill.policy_params, state.normalizer, k1)
             metrics = acc.summary(train_m)
             acc = _Accumulator()
@@ -470,6 +494,11 @@ def train(
             metrics["iteration"] = it + 1
             if progress_fn is not None:
                 progress_fn(int(state.env_steps), metrics)
+        if checkpoint_fn is not None and (
+                last or (evaluate if checkpoint_every is None else
+                         (it + 1) * spi // int(checkpoint_every) > it * spi // int(checkpoint_every))):
+            checkpoint_fn(state, {"iteration": it + 1, "env_steps": (it + 1) * spi, "metrics": metrics,
+                                  "accumulator": acc.to_dict(), "wall_time": time.perf_counter() - t0})
     params = {"new_skill": state.new_skill.policy_params, "scheduler": state.scheduler.policy_params,
               "normalizer": state.normalizer}
     make_policy = make_policy_factory(int(environment.action_size), config, trainer.num_skills_total)
@@ -491,6 +520,18 @@ class _Accumulator:
             self.sums[k] = self.sums.get(k, 0.0) + np.asarray(m[k], np.float64)
         for k in self.weighted:
             self.weighted[k] += float(m[k]) * float(m["episodes"])
+
+    def to_dict(self) -> dict:
+        """JSON-able state (for checkpoints); ``from_dict`` restores it exactly."""
+        return {"sums": {k: _to_py(v) for k, v in self.sums.items()}, "weighted": dict(self.weighted)}
+
+    @classmethod
+    def from_dict(cls, d: Optional[dict]) -> "_Accumulator":
+        acc = cls()
+        if d:
+            acc.sums = {k: np.asarray(v, np.float64) for k, v in d["sums"].items()}
+            acc.weighted = {k: float(v) for k, v in d["weighted"].items()}
+        return acc
 
     def summary(self, last_metrics):
         out = {k: _to_py(v) for k, v in last_metrics.items()}

@@ -2,18 +2,28 @@
 
     python -m training.run                                  # kinematic lift, device-sized defaults
     python -m training.run --task lift --num_envs 4096      # on a GPU
+    python -m training.run --resume --out DIR               # continue a killed run exactly
 
-Writes into ``--out`` (a new directory; an existing one is never written into):
-``config.json``, ``metrics.csv`` (one row per evaluation), ``new_skill.npz`` + ``.json`` (the
-new skill as a loadable skill: ``python -m training.evaluate --policy DIR/new_skill.npz``).
+Writes into ``--out`` (a new directory; an existing one is only ever written into by
+``--resume``): ``config.json`` (the whole run configuration; it fixes the config of a resumed
+run), ``metrics.csv`` (one row per evaluation), ``checkpoints/`` (full training state, the latest
+2, see ``training.checkpointing``), ``new_skill.npz`` + ``.json`` (the new skill as a loadable
+skill: ``python -m training.evaluate --policy DIR/new_skill.npz``) and ``export.npz`` + ``.json``
+(new skill and scheduler, ``training.export``).
 The last line printed is ``success=<new skill alone> return=<mean>``.
+
+Settings come from, in increasing precedence: the defaults, ``--config FILE.json`` (any
+``TrainConfig`` field, nested ``scheduler`` / ``new_skill`` fields included), command-line flags.
+Bad input is reported as one line on stderr with exit code 2, before anything is written.
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
+import io
 import json
+import math
 import os
 import sys
 import time
@@ -21,6 +31,18 @@ import time
 from training.cli import Parser, UsageError, main_guard, nonnegative_int, positive_int
 
 DEFAULT_TIMESTEPS = {"cpu": 400_000, "accelerator": 20_000_000}
+# Flags whose defaults are applied after parsing (None = "not given": --resume rejects given flags
+# that conflict with the run's config.json).
+DEFAULTS = dict(task="lift", physics="kinematic", seed=0, skills="useful", method="skills", eval_episodes=32)
+METHODS = ("skills", "scratch")
+# Integer config fields that must be >= 1 (other integer fields must be >= 0).
+POSITIVE_FIELDS = {"num_envs", "replay_size", "unroll_length", "eval_episodes", "eval_every", "batch_size",
+                   "target_actor_period", "target_critic_period", "num_action_samples", "mpo_num_samples"}
+CSV_FIELDS = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skill_return", "eval/scheduler_success",
+              "eval/scheduler_return", "episode_success", "episode_return", "new_skill_selection_rate",
+              "scheduler/critic_loss", "new_skill/critic_loss", "scheduler/policy_entropy_i", "skill_histogram",
+              "length_histogram", "skill_steps"]
+DEFAULT_CACHE_DIR = os.path.join(os.path.expanduser("~"), ".cache", "parallel_skills_jax")
 
 
 def build_parser():
@@ -28,136 +50,408 @@ def build_parser():
     from tasks.manipulation.skill_sets import SET_NAMES
 
     p = Parser(prog="python -m training.run", description=__doc__.splitlines()[0])
-    p.add_argument("--task", default="lift", help="task name (see tasks.names())")
-    p.add_argument("--physics", default="kinematic", help=f"one of {', '.join(tasks.PHYSICS)}")
+    p.add_argument("--task", default=None, help="task name (see tasks.names()); default lift")
+    p.add_argument("--physics", default=None, help=f"one of {', '.join(tasks.PHYSICS)}; default kinematic")
     p.add_argument("--num_envs", type=positive_int, default=None, help="default: 32 on CPU, 4096 on GPU")
     p.add_argument("--num_timesteps", type=positive_int, default=None, help="env steps (default: 400k on CPU)")
     p.add_argument("--episode_length", type=positive_int, default=None)
-    p.add_argument("--seed", type=nonnegative_int, default=0)
-    p.add_argument("--skills", default="useful", help=f"skill set: {', '.join(SET_NAMES)}")
-    p.add_argument("--method", default="skills", choices=["skills", "scratch"])
-    p.add_argument("--eval_every", type=positive_int, default=None, help="iterations between evaluations")
-    p.add_argument("--eval_episodes", type=positive_int, default=32)
+    p.add_argument("--seed", type=nonnegative_int, default=None, help="default 0")
+    p.add_argument("--skills", default=None, help=f"skill set: {', '.join(SET_NAMES)}; default useful")
+    p.add_argument("--method", default=None, choices=list(METHODS), help="default skills")
+    p.add_argument("--eval_every", type=positive_int, default=None,
+                   help="iterations between evaluations (default: 20 evaluations per run)")
+    p.add_argument("--eval_episodes", type=positive_int, default=None, help="default 32")
     p.add_argument("--config", default=None, help="JSON file overriding TrainConfig fields, e.g. "
                    '{"unroll_length": 25, "scheduler": {"policy_warmup_updates": 1500}, "new_skill": {"crr_mode": "indicator"}}')
-    p.add_argument("--out", default=None, help="run directory (must not exist); default runs/<task>-<method>-s<seed>-<time>")
+    p.add_argument("--out", default=None, help="run directory (must not exist unless --resume); "
+                   "default runs/<task>-<method>-s<seed>-<time>")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run in the existing --out from its latest checkpoint, with its config.json")
+    p.add_argument("--checkpoint_every", type=positive_int, default=None,
+                   help="env steps between checkpoints (default: at every evaluation); the latest 2 are kept")
+    p.add_argument("--no-replay-checkpoint", dest="no_replay_checkpoint", action="store_true",
+                   help="leave the replay buffer out of checkpoints (smaller; a resume then starts with an "
+                        "empty buffer and is no longer identical to an uninterrupted run)")
     return p
 
 
-def apply_config_file(cfg, path):
-    """Override TrainConfig fields (and nested scheduler / new_skill fields) from a JSON file."""
-    from parallel_skills import NewSkillConfig, SchedulerConfig
+# ----------------------------------------------------------------------------- config files
 
+def _check_value(where: str, name: str, default, value):
+    """Type / range check of one config value against the field's default; returns the value."""
+    def bad(what):
+        return UsageError(f"{where}: {name} must be {what}, got {json.dumps(value)}")
+
+    is_int = isinstance(value, int) and not isinstance(value, bool)
+    lo = 1 if name.rsplit(".", 1)[-1] in POSITIVE_FIELDS else 0
+    if default is None:  # device-dependent size (num_envs, replay_size)
+        if value is None:
+            return None
+        if not is_int or value < lo:
+            raise bad("a positive integer or null")
+        return value
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise bad("true or false")
+        return value
+    if isinstance(default, int):
+        if not is_int or value < lo:
+            raise bad("a positive integer" if lo else "a non-negative integer")
+        return value
+    if isinstance(default, float):
+        if not (is_int or isinstance(value, float)) or not math.isfinite(value):
+            raise bad("a finite number")
+        return float(value)
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise bad("a string")
+        return value
+    if isinstance(default, tuple):
+        if (not isinstance(value, (list, tuple)) or not value
+                or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in value)):
+            raise bad("a non-empty list of positive integers")
+        return tuple(value)
+    return value
+
+
+def apply_config(cfg, data: dict, where: str):
+    """``cfg`` with the TrainConfig fields of ``data`` (nested scheduler / new_skill dicts) set;
+    every name, type and range checked. ``where`` names the source in error messages."""
+    nested = ("scheduler", "new_skill")
+    if not isinstance(data, dict):
+        raise UsageError(f"{where} must hold a JSON object of TrainConfig fields")
+    top = {f.name for f in dataclasses.fields(cfg)}
+    updates = {}
+    for key, value in data.items():
+        if key not in top:
+            raise UsageError(f"unknown config field {key!r} in {where}; valid: {', '.join(sorted(top))}")
+        if key in nested:
+            sub = getattr(cfg, key)
+            if not isinstance(value, dict):
+                raise UsageError(f"{where}: {key} must be a JSON object of {type(sub).__name__} fields")
+            valid = {f.name for f in dataclasses.fields(sub)}
+            bad = sorted(set(value) - valid)
+            if bad:
+                raise UsageError(f"unknown {key} config field(s) {bad} in {where}; valid: {', '.join(sorted(valid))}")
+            try:
+                value = dataclasses.replace(sub, **{k: _check_value(where, f"{key}.{k}", getattr(sub, k), v)
+                                                    for k, v in value.items()})
+            except (ValueError, TypeError) as e:
+                raise UsageError(f"{where}: invalid {key} config: {e}") from None
+        else:
+            value = _check_value(where, key, getattr(cfg, key), value)
+        updates[key] = value
+    try:
+        return dataclasses.replace(cfg, **updates)
+    except (ValueError, TypeError) as e:
+        raise UsageError(f"{where}: invalid config: {e}") from None
+
+
+def load_config_file(path: str) -> dict:
     try:
         with open(path) as f:
             data = json.load(f)
     except FileNotFoundError:
         raise UsageError(f"config file {path} does not exist") from None
+    except IsADirectoryError:
+        raise UsageError(f"config file {path} is a directory, not a JSON file") from None
     except (OSError, ValueError) as e:
-        raise UsageError(f"cannot read config file {path}: {e}") from None
+        raise UsageError(f"cannot read config file {path}: {str(e).splitlines()[0]}") from None
     if not isinstance(data, dict):
         raise UsageError(f"config file {path} must hold a JSON object of TrainConfig fields")
-    nested = {"scheduler": SchedulerConfig, "new_skill": NewSkillConfig}
-    top = {f.name for f in dataclasses.fields(cfg)}
-    updates = {}
-    for key, value in data.items():
-        if key not in top:
-            raise UsageError(f"unknown config field {key!r} in {path}; valid: {', '.join(sorted(top))}")
-        if key in nested:
-            sub = getattr(cfg, key)
-            valid = {f.name for f in dataclasses.fields(sub)}
-            bad = sorted(set(value) - valid) if isinstance(value, dict) else ["(not an object)"]
-            if bad:
-                raise UsageError(f"unknown {key} config field(s) {bad} in {path}; valid: {', '.join(sorted(valid))}")
-            value = dataclasses.replace(sub, **{k: tuple(v) if isinstance(v, list) else v for k, v in value.items()})
-        updates[key] = value
-    return dataclasses.replace(cfg, **updates)
+    return data
 
 
-def main(argv=None):
-    args = build_parser().parse_args(argv)
-    main_guard(lambda: _run(args))
+def apply_config_file(cfg, path):
+    """Override TrainConfig fields (and nested scheduler / new_skill fields) from a JSON file."""
+    return apply_config(cfg, load_config_file(path), f"config file {path}")
 
 
-def _run(args):
-    import tasks
-    from tasks.manipulation import scripted, skill_sets
+def _first_difference(a, b, prefix=""):
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if dataclasses.is_dataclass(x):
+            d = _first_difference(x, y, f"{prefix}{f.name}.")
+            if d:
+                return d
+        elif x != y:
+            return f"{prefix}{f.name}", x, y
+    return None
 
-    if args.task not in tasks.names():
-        raise UsageError(f"unknown task {args.task!r}; valid tasks: {', '.join(tasks.names())}")
-    if args.physics not in tasks.PHYSICS:
-        raise UsageError(f"unknown physics {args.physics!r}; valid: {', '.join(tasks.PHYSICS)}")
-    names = [] if args.method == "scratch" else skill_sets.skill_names(args.task, args.skills)
-    out = args.out or os.path.join("runs", f"{args.task}-{args.method}-s{args.seed}-{time.strftime('%Y%m%d-%H%M%S')}")
-    if os.path.exists(out):
-        raise UsageError(f"run directory {out} already exists; choose a new --out (runs are never overwritten)")
+
+# ----------------------------------------------------------------------------- preparing a run
+
+def enable_compilation_cache():
+    """JAX's persistent compilation cache for CLI runs: ``$JAX_COMPILATION_CACHE_DIR`` if set, else
+    ``~/.cache/parallel_skills_jax`` (the tests' default). Left alone if already configured."""
+    import jax
+
+    if not jax.config.jax_compilation_cache_dir:
+        jax.config.update("jax_compilation_cache_dir", os.environ.get("JAX_COMPILATION_CACHE_DIR") or DEFAULT_CACHE_DIR)
+
+
+def _command(argv):
+    return " ".join(["python -m training.run"] + list(argv))
+
+
+def _check_writable(out):
     parent = os.path.dirname(os.path.abspath(out))
-    if os.path.exists(parent) and not os.access(parent, os.W_OK):
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent):
+        raise UsageError(f"cannot create the run directory {out}: {parent} is not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
         raise UsageError(f"cannot write the run directory {out}: {parent} is not writable")
+
+
+def prepare_new(args, argv):
+    """Validate everything, then create the run directory and its config.json."""
+    import tasks
+    from tasks.manipulation import skill_sets
+
+    a = {k: (getattr(args, k) if getattr(args, k) is not None else v) for k, v in DEFAULTS.items()}
+    if a["task"] not in tasks.names():
+        raise UsageError(f"unknown task {a['task']!r}; valid tasks: {', '.join(tasks.names())}")
+    if a["physics"] not in tasks.PHYSICS:
+        raise UsageError(f"unknown physics {a['physics']!r}; valid: {', '.join(tasks.PHYSICS)}")
+    if a["skills"] not in skill_sets.SET_NAMES:
+        raise UsageError(f"unknown skill set {a['skills']!r}; valid: {', '.join(skill_sets.SET_NAMES)}")
+
+    from parallel_skills import TrainConfig
+    from parallel_skills.train import resolve
+
+    cfg = TrainConfig(eval_episodes=DEFAULTS["eval_episodes"])
+    file_data = {}
+    if args.config:
+        file_data = load_config_file(args.config)
+        cfg = apply_config(cfg, file_data, f"config file {args.config}")
+    flags = {"num_envs": args.num_envs, "method": args.method, "eval_episodes": args.eval_episodes}
+    cfg = dataclasses.replace(cfg, **{k: v for k, v in flags.items() if v is not None})
+    method = cfg.method
+    if method not in METHODS:  # (TrainConfig validates it too)
+        raise UsageError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+    names = [] if method == "scratch" else skill_sets.skill_names(a["task"], a["skills"])
+
+    out = args.out or os.path.join("runs", f"{a['task']}-{method}-s{a['seed']}-{time.strftime('%Y%m%d-%H%M%S')}")
+    if os.path.exists(out):
+        raise UsageError(f"run directory {out} already exists; choose a new --out, or --resume it "
+                         "(runs are never overwritten)")
+    _check_writable(out)
 
     import jax
 
-    from parallel_skills import Skill, TrainConfig, train
-    from parallel_skills.normalization import std as norm_std
-    from parallel_skills.train import resolve
-
-    overrides = {} if args.episode_length is None else {"episode_length": args.episode_length}
-    env = tasks.make(args.task, physics=args.physics, **overrides)
-    skills = [Skill.from_fn(n, scripted.get(n), source="scripted") for n in names]
     on_cpu = jax.default_backend() == "cpu"
     num_timesteps = args.num_timesteps or DEFAULT_TIMESTEPS["cpu" if on_cpu else "accelerator"]
-    cfg = TrainConfig(num_envs=args.num_envs, method=args.method, eval_episodes=args.eval_episodes)
-    if args.config:
-        cfg = apply_config_file(cfg, args.config)
     resolved, notes = resolve(cfg)
-    steps_per_iter = resolved.num_envs * resolved.unroll_length
-    eval_every = args.eval_every or max(1, round(num_timesteps / steps_per_iter / 20))
-    cfg = dataclasses.replace(cfg, eval_every=eval_every)
+    if args.eval_every is not None:
+        eval_every = args.eval_every
+    elif "eval_every" in file_data:
+        eval_every = cfg.eval_every
+    else:
+        eval_every = max(1, round(num_timesteps / (resolved.num_envs * resolved.unroll_length) / 20))
+    resolved = dataclasses.replace(resolved, eval_every=eval_every)
+    overrides = {} if args.episode_length is None else {"episode_length": args.episode_length}
+    env = tasks.make(a["task"], physics=a["physics"], **overrides)  # validates the overrides
 
+    run = {"command": _command(argv), "task": a["task"], "physics": a["physics"], "skill_set": a["skills"],
+           "skills": names, "seed": a["seed"], "num_timesteps": num_timesteps,
+           "episode_length": int(getattr(env, "episode_length", 0)) or args.episode_length,
+           "checkpoint_every": args.checkpoint_every, "replay_checkpoint": not args.no_replay_checkpoint,
+           "train_config": dataclasses.asdict(resolved), "auto": notes}
     try:
         os.makedirs(out)
     except OSError as e:
         raise UsageError(f"cannot create the run directory {out}: {e.strerror}") from None
     with open(os.path.join(out, "config.json"), "w") as f:
-        json.dump({"command": " ".join(["python -m training.run"] + sys.argv[1:]), "task": args.task,
-                   "physics": args.physics, "skills": names, "seed": args.seed, "num_timesteps": num_timesteps,
-                   "train_config": dataclasses.asdict(resolved), "auto": notes}, f, indent=2, default=str)
-    print(f"run dir: {out}")
-    print(f"task={args.task} physics={args.physics} method={args.method} skills={names or '(none)'}")
-    # (train() logs the device-dependent defaults it chose.)
+        json.dump(run, f, indent=2, default=str)
+    return out, run, resolved, env
 
+
+def _train_config_from_json(data, where):
+    from parallel_skills import TrainConfig
+
+    return apply_config(TrainConfig(), data, where)
+
+
+def prepare_resume(args):
+    """Validate a --resume: the run exists, its config.json fixes the config (conflicting flags
+    are rejected) and it holds a checkpoint. Writes nothing."""
+    import tasks
+    from training.checkpointing import Checkpointer
+
+    if args.out is None:
+        raise UsageError("--resume needs --out DIR, the run directory to continue")
+    out = args.out
+    if not os.path.exists(out):
+        raise UsageError(f"cannot resume: run directory {out} does not exist")
+    if not os.path.isdir(out):
+        raise UsageError(f"cannot resume: {out} is not a directory")
+    cfg_path = os.path.join(out, "config.json")
+    if not os.path.isfile(cfg_path):
+        raise UsageError(f"cannot resume: {out} has no config.json (not a training.run directory)")
+    try:
+        with open(cfg_path) as f:
+            run = json.load(f)
+        keys = ("task", "physics", "skills", "seed", "num_timesteps", "train_config")
+        if not isinstance(run, dict) or any(k not in run for k in keys):
+            raise ValueError(f"it lacks one of {', '.join(keys)}")
+        if not isinstance(run["train_config"], dict):
+            raise ValueError("train_config is not an object")
+        resolved = _train_config_from_json(run["train_config"], f"{cfg_path} train_config")
+    except UsageError:
+        raise
+    except (OSError, ValueError) as e:
+        raise UsageError(f"cannot resume: {cfg_path} is unreadable or invalid: {str(e).splitlines()[0]}") from None
+    run.setdefault("skill_set", None)
+    run.setdefault("episode_length", None)
+    run.setdefault("checkpoint_every", None)
+    run.setdefault("replay_checkpoint", True)
+
+    given = {"task": (args.task, run["task"]), "physics": (args.physics, run["physics"]),
+             "skills": (args.skills, run["skill_set"]), "seed": (args.seed, run["seed"]),
+             "method": (args.method, resolved.method), "num_timesteps": (args.num_timesteps, run["num_timesteps"]),
+             "num_envs": (args.num_envs, resolved.num_envs), "episode_length": (args.episode_length, run["episode_length"]),
+             "eval_every": (args.eval_every, resolved.eval_every),
+             "eval_episodes": (args.eval_episodes, resolved.eval_episodes),
+             "checkpoint_every": (args.checkpoint_every, run["checkpoint_every"])}
+    for name, (value, stored) in given.items():
+        if value is not None and value != stored:
+            raise UsageError(f"--{name} {value} conflicts with {cfg_path} ({name}={json.dumps(stored)}); "
+                             "--resume continues a run with its own config: drop the flag")
+    if args.no_replay_checkpoint and run["replay_checkpoint"]:
+        raise UsageError(f"--no-replay-checkpoint conflicts with {cfg_path} (replay_checkpoint=true); "
+                         "--resume continues a run with its own config: drop the flag")
+    if args.config:
+        changed = _first_difference(resolved, apply_config_file(resolved, args.config))
+        if changed:
+            raise UsageError(f"--config {args.config} sets {changed[0]}={json.dumps(changed[2], default=str)}, "
+                             f"{cfg_path} has {json.dumps(changed[1], default=str)}; --resume continues a run "
+                             "with its own config: drop the flag")
+    if run["task"] not in tasks.names() or run["physics"] not in tasks.PHYSICS:
+        raise UsageError(f"cannot resume: {cfg_path} names task {run['task']!r} / physics {run['physics']!r}, "
+                         "which this version does not know")
+    from tasks.manipulation import scripted
+
+    unknown = [n for n in run["skills"] if n not in scripted.names()]
+    if unknown:
+        raise UsageError(f"cannot resume: {cfg_path} names skills {unknown} this version does not have")
+    if os.path.exists(os.path.join(out, "export.json")):
+        raise UsageError(f"run {out} is complete (it has export.json); nothing to resume")
+    ckpt = Checkpointer(out)
+    if ckpt.latest_step() is None:
+        raise UsageError(f"cannot resume: {out} holds no checkpoint (nothing in {ckpt.directory}); "
+                         "start the run again with a new --out")
+    overrides = {} if run["episode_length"] is None else {"episode_length": int(run["episode_length"])}
+    env = tasks.make(run["task"], physics=run["physics"], **overrides)
+    return out, run, resolved, env
+
+
+# ----------------------------------------------------------------------------- running
+
+def main(argv=None):
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
+    enable_compilation_cache()
+    out, run, resolved, env = main_guard(lambda: prepare_resume(args) if args.resume else prepare_new(args, argv))
+    _train(out, run, resolved, env, resume=args.resume)
+
+
+def _train(out, run, resolved, env, resume: bool):
+    from parallel_skills import Skill, train
+    from parallel_skills.normalization import std as norm_std
+    from tasks.manipulation import scripted
+    from training.checkpointing import Checkpointer, CheckpointError, abstract_training_state
+    from training.export import write_export
+
+    names = list(run["skills"])
+    skills = [Skill.from_fn(n, scripted.get(n), source="scripted") for n in names]
+    seed, num_timesteps = int(run["seed"]), int(run["num_timesteps"])
+    ckpt = Checkpointer(out, save_replay=run["replay_checkpoint"])
     csv_path = os.path.join(out, "metrics.csv")
-    fields = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skill_return", "eval/scheduler_success",
-              "eval/scheduler_return", "episode_success", "episode_return", "new_skill_selection_rate",
-              "scheduler/critic_loss", "new_skill/critic_loss", "scheduler/policy_entropy_i", "skill_histogram",
-              "length_histogram", "skill_steps"]
-    t0 = time.perf_counter()
+    initial_state = host_state = None
 
-    with open(csv_path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-        writer.writeheader()
+    if resume:
+        def restore():
+            abstract, fresh_replay = abstract_training_state(env, skills, resolved, seed)
+            try:
+                state, host = ckpt.restore(abstract, fresh_replay)
+            except CheckpointError as e:
+                raise UsageError(f"cannot resume: {e}") from None
+            if not all(k in host for k in ("csv_bytes", "csv_rows", "env_steps")):
+                raise UsageError(f"cannot resume: the checkpoint in {ckpt.directory} was not written by training.run")
+            size = os.path.getsize(csv_path) if os.path.isfile(csv_path) else -1
+            if size < int(host["csv_bytes"]):
+                raise UsageError(f"cannot resume: {csv_path} is {'missing' if size < 0 else f'{size} bytes'}, "
+                                 f"the checkpoint covers its first {host['csv_bytes']} bytes")
+            return state, host
+
+        initial_state, host_state = main_guard(restore)
+        with open(csv_path, "r+b") as f:  # drop the rows written after the checkpoint
+            f.truncate(int(host_state["csv_bytes"]))
+        stale = os.path.join(out, "export.npz")  # an export killed before its export.json: redone below
+        if os.path.exists(stale):
+            os.remove(stale)
+        print(f"resuming {out} from its checkpoint at iteration {host_state['iteration']} "
+              f"({host_state['env_steps']:,} env steps, {host_state['csv_rows']} metrics rows)"
+              + ("" if host_state.get("replay_saved", True) else "; the checkpoint holds no replay: "
+                 "the buffer starts empty"))
+    else:
+        print(f"run dir: {out}")
+    print(f"task={run['task']} physics={run['physics']} method={resolved.method} skills={names or '(none)'}")
+    if run.get("auto") and not resume:  # (train() gets the resolved config: it has nothing to choose)
+        print("CPU backend: smaller defaults chosen automatically: " + ", ".join(run["auto"]))
+
+    t0 = time.perf_counter()
+    start_steps = int(host_state["env_steps"]) if host_state else 0
+    csv_rows = int(host_state["csv_rows"]) if host_state else 0
+
+    with open(csv_path, "ab" if resume else "wb") as f:
+        def write_row(row):
+            buf = io.StringIO()
+            csv.writer(buf).writerow(row)
+            f.write(buf.getvalue().encode())
+            f.flush()
+
+        if not resume:
+            write_row(CSV_FIELDS)
 
         def progress(steps, m):
-            writer.writerow({k: json.dumps(m[k]) if isinstance(m.get(k), list) else m.get(k, "") for k in fields})
-            f.flush()
-            rate = steps / max(time.perf_counter() - t0, 1e-9)
+            nonlocal csv_rows
+            write_row([json.dumps(m[k]) if isinstance(m.get(k), list) else m.get(k, "") for k in CSV_FIELDS])
+            csv_rows += 1
+            rate = (steps - start_steps) / max(time.perf_counter() - t0, 1e-9)
             sched = f" scheduler={m['eval/scheduler_success']:.2f}" if "eval/scheduler_success" in m else ""
             print(f"[{steps:>10,d} steps {rate:8,.0f}/s] new_skill success={m['eval/new_skill_success']:.2f}"
                   f" return={m['eval/new_skill_return']:.1f}{sched} train_success={m['episode_success']:.2f}"
                   f" new_skill_rate={m['new_skill_selection_rate']:.2f}", flush=True)
 
-        make_policy, params, metrics = train(env, skills, num_timesteps=num_timesteps, seed=args.seed, config=cfg,
-                                             progress_fn=progress)
+        def checkpoint(state, host):
+            os.fsync(f.fileno())  # the rows this checkpoint covers are on disk first
+            ckpt.save(state, dict(host, csv_bytes=f.tell(), csv_rows=csv_rows))
+
+        make_policy, params, metrics = train(
+            env, skills, num_timesteps=num_timesteps, seed=seed, config=resolved, progress_fn=progress,
+            initial_state=initial_state, host_state=host_state, checkpoint_fn=checkpoint,
+            checkpoint_every=run["checkpoint_every"])
+    ckpt.close()
 
     stats = params["normalizer"]
     skill = Skill.gaussian_mlp(
-        f"{args.task}_new_skill", {"policy": params["new_skill"], "obs_mean": stats.mean, "obs_std": norm_std(stats)},
+        f"{run['task']}_new_skill", {"policy": params["new_skill"], "obs_mean": stats.mean, "obs_std": norm_std(stats)},
         env.action_size, resolved.new_skill.hidden)
-    skill.save(os.path.join(out, "new_skill.npz"), obs_size=int(env.observation_size), task=args.task,
-               physics=args.physics, seed=args.seed, command=" ".join(["python -m training.run"] + sys.argv[1:]),
+    skill.save(os.path.join(out, "new_skill.npz"), obs_size=int(env.observation_size), task=run["task"],
+               physics=run["physics"], seed=seed, command=run["command"],
                success=metrics["eval/new_skill_success"], trained_with=names, env_steps=metrics["env_steps"])
     print(f"new skill saved: {os.path.join(out, 'new_skill.npz')}  ({metrics['env_steps']:,} env steps, "
           f"{time.perf_counter() - t0:.0f} s)")
+    meta = {"skills": names, "seed": seed, "env_steps": metrics["env_steps"], "command": run["command"],
+            "skill_set": run["skill_set"], "num_timesteps": num_timesteps,
+            "success": metrics["eval/new_skill_success"], "return": metrics["eval/new_skill_return"]}
+    for k in ("eval/scheduler_success", "eval/scheduler_return"):
+        if k in metrics:
+            meta[k.split("/")[1]] = metrics[k]
+    path = write_export(out, params, env=env, config=resolved, task=run["task"], physics=run["physics"], metadata=meta)
+    print(f"export saved: {path}")
     print(f"success={metrics['eval/new_skill_success']:.4f} return={metrics['eval/new_skill_return']:.3f}")
 
 

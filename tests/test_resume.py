@@ -1,0 +1,160 @@
+"""Exact resumption (issue 5, item 3): a training.run killed with SIGKILL after a checkpoint and
+resumed with --resume ends identical to an uninterrupted run of the same seed (metrics.csv,
+exported params, the whole final training state); --no-replay-checkpoint resumes with an empty
+replay buffer."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import jax
+import numpy as np
+import pytest
+
+from training.checkpointing import CHECKPOINT_SUBDIR, Checkpointer
+from training.run import main
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+TINY = {"num_envs": 4, "unroll_length": 5, "replay_size": 2000, "eval_episodes": 2,
+        "scheduler": {"skill_lengths": [2, 3], "hidden": [32, 32], "critic_head_hidden": [16], "batch_size": 16,
+                      "min_replay_size": 10, "samples_per_insert": 4.0},
+        "new_skill": {"hidden": [32, 32], "batch_size": 16, "min_replay_size": 10, "samples_per_insert": 4.0}}
+ITERATIONS = 12  # 20 env steps each; evaluations at 3, 6, 9, 12; checkpoints every 2 iterations
+
+
+def _args(tmp, out, *extra):
+    cfg = os.path.join(tmp, "tiny.json")
+    if not os.path.exists(cfg):
+        with open(cfg, "w") as f:
+            json.dump(TINY, f)
+    return ["--task", "lift", "--config", cfg, "--num_timesteps", str(20 * ITERATIONS), "--episode_length", "20",
+            "--eval_every", "3", "--checkpoint_every", "40", "--seed", "1", *extra, "--out", out]
+
+
+def _rows(run):
+    with open(os.path.join(run, "metrics.csv"), newline="") as f:
+        rows = list(csv.reader(f))
+    wall = rows[0].index("wall_time")
+    return [r[:wall] + r[wall + 1:] for r in rows]  # all but the wall-clock time
+
+
+def _npz(path):
+    with np.load(path) as z:
+        return {k: z[k] for k in z.files}
+
+
+def _assert_same_arrays(a, b):
+    assert sorted(a) == sorted(b)
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+def _final_state(run):
+    """The latest checkpoint's state leaves and host state (wall time and csv position aside)."""
+    ck = Checkpointer(run)
+    import orbax.checkpoint as ocp
+
+    step = ck.latest_step()
+    r = ck._mgr().restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(),
+                                                        replay=ocp.args.StandardRestore(),
+                                                        host=ocp.args.JsonRestore()))
+    host = dict(r.host)
+    for k in ("wall_time", "csv_bytes"):
+        host.pop(k)
+    host["metrics"].pop("wall_time")
+    ck.close()
+    return step, jax.tree.leaves((r.state, r.replay)), host
+
+
+def _run_and_kill_after_first_checkpoint(argv, cwd, env):
+    """Start ``training.run argv`` in a subprocess, SIGKILL it as soon as its first checkpoint is
+    complete; return the latest checkpoint's iteration."""
+    run = argv[argv.index("--out") + 1]
+    ckpt = Checkpointer(run)
+    proc = subprocess.Popen([sys.executable, "-m", "training.run", *argv], cwd=cwd, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 240
+    try:
+        while time.time() < deadline and proc.poll() is None:
+            # orbax renames the finished checkpoint into place: a digit-named dir is complete.
+            if os.path.isdir(ckpt.directory) and any(s.isdigit() for s in os.listdir(ckpt.directory)):
+                os.kill(proc.pid, signal.SIGKILL)
+                break
+            time.sleep(0.01)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode in (0, -signal.SIGKILL), proc.returncode
+    step = ckpt.latest_step()
+    assert step is not None, "no checkpoint was written"
+    return step
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    tmp = str(tmp_path_factory.mktemp("resume"))
+    run = os.path.join(tmp, "a")
+    main(_args(tmp, run))
+    return tmp, run
+
+
+def test_sigkill_then_resume_matches_uninterrupted_run(uninterrupted):
+    tmp, run_a = uninterrupted
+    env = dict(os.environ, PYTHONPATH=ROOT, JAX_COMPILATION_CACHE_DIR=jax.config.jax_compilation_cache_dir)
+    for attempt in range(3):  # a retry only if the run outran the kill (finished before it)
+        run_b = os.path.join(tmp, f"b{attempt}")
+        killed_at = _run_and_kill_after_first_checkpoint(_args(tmp, run_b), tmp, env)
+        if killed_at < ITERATIONS:
+            break
+    assert killed_at < ITERATIONS, f"killed too late (checkpoint {killed_at})"
+    assert not os.path.exists(os.path.join(run_b, "export.json"))
+    # A row written after the last checkpoint (as a run killed between its evaluation and its
+    # next checkpoint leaves): the resume must drop it.
+    with open(os.path.join(run_b, "metrics.csv"), "a") as f:
+        f.write("999999,0,0,0,0,0,0,0,0,0,0,0,[],[],[]\n")
+
+    main(["--resume", "--out", run_b])
+
+    rows = _rows(run_a)
+    assert len(rows) == 1 + ITERATIONS // 3 and [int(r[0]) for r in rows[1:]] == [60, 120, 180, 240]
+    assert _rows(run_b) == rows
+    _assert_same_arrays(_npz(os.path.join(run_a, "new_skill.npz")), _npz(os.path.join(run_b, "new_skill.npz")))
+    _assert_same_arrays(_npz(os.path.join(run_a, "export.npz")), _npz(os.path.join(run_b, "export.npz")))
+    with open(os.path.join(run_a, "export.json")) as fa, open(os.path.join(run_b, "export.json")) as fb:
+        ja, jb = json.load(fa), json.load(fb)
+    assert ja["metadata"].pop("command") != jb["metadata"].pop("command") and ja == jb  # (different --out)
+    step_a, leaves_a, host_a = _final_state(run_a)
+    step_b, leaves_b, host_b = _final_state(run_b)
+    assert step_a == step_b == ITERATIONS and host_a == host_b
+    for x, y in zip(leaves_a, leaves_b):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert len(Checkpointer(run_b).steps()) == 2  # the latest 2 are kept
+
+
+def test_resume_without_replay_checkpoint(uninterrupted):
+    tmp, run_a = uninterrupted
+    run_c = os.path.join(tmp, "c")
+    main(_args(tmp, run_c, "--no-replay-checkpoint"))
+    ck = Checkpointer(run_c)
+    steps = ck.steps()
+    assert steps == [ITERATIONS - 2, ITERATIONS]
+    assert not os.path.exists(os.path.join(ck.directory, str(steps[-1]), "replay"))
+    assert _rows(run_c) == _rows(run_a)  # checkpointing does not change the run
+    # Roll back to the earlier checkpoint, as if the run had been killed before its last one.
+    shutil.rmtree(os.path.join(ck.directory, str(ITERATIONS)))
+    for name in ("export.npz", "export.json"):
+        os.remove(os.path.join(run_c, name))
+    main(["--resume", "--out", run_c])
+    rows = _rows(run_c)
+    # No duplicate or lost rows: the rows the checkpoint covers are kept, the rest recomputed.
+    assert [int(r[0]) for r in rows[1:]] == [60, 120, 180, 240]
+    assert rows[:-1] == _rows(run_a)[:-1]
+    ckpt_dir = os.path.join(run_c, CHECKPOINT_SUBDIR)
+    assert sorted(int(s) for s in os.listdir(ckpt_dir) if s.isdigit()) == [ITERATIONS - 2, ITERATIONS]

@@ -1,0 +1,156 @@
+"""Full-state checkpoints of a training run (orbax-checkpoint), for exact resumption.
+
+    ckpt = Checkpointer(run_dir, save_replay=True)
+    train(..., checkpoint_fn=ckpt.save, checkpoint_every=M)           # writes RUN/checkpoints/<it>/
+    state, host = ckpt.restore(abstract_training_state(env, skills, config, seed))
+    train(..., initial_state=state, host_state=host)                   # continues the run exactly
+
+One checkpoint is the directory ``RUN/checkpoints/<iteration>/``, written by orbax's
+``CheckpointManager`` synchronously and atomically: orbax writes into a temporary directory and
+renames it when complete, so a run killed mid-save leaves the earlier checkpoints intact (and the
+unfinished temporary directory is ignored). The latest ``MAX_TO_KEEP`` (2) are kept. Items:
+
+* ``state``: the whole ``parallel_skills.train.TrainingState`` but the replay buffer: scheduler
+  and new-skill learner states (policy / critic params, their target networks, Adam states, MPO
+  duals and their optimiser states, update counters), the actor state (per-env skill index,
+  counter, length index, episode-start flags, running episode return / success and the batched
+  env states), the observation normaliser, the run's RNG key, ``env_steps`` and ``iteration``.
+* ``replay``: the replay buffer (flashbax state: every stored transition, the write index and
+  the full flag). Not written with ``save_replay=False`` (``--no-replay-checkpoint``); a resume
+  from such a checkpoint starts with an empty buffer (all else restored): the learners pause
+  until it again holds their ``min_replay_size`` transitions, and the continuation is no longer
+  identical to an uninterrupted run.
+* ``host``: JSON of the host-side loop state: iteration, env_steps, the last evaluation's metrics,
+  the training statistics accumulated since that evaluation, elapsed wall time, whether the
+  replay was saved, and what ``training.run`` adds (the byte length and row count of
+  ``metrics.csv`` that the checkpoint covers). The evaluation RNG key needs no saving: ``train``
+  derives it from (seed, iteration).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Callable, Optional
+
+CHECKPOINT_SUBDIR = "checkpoints"
+MAX_TO_KEEP = 2
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be restored into this run (missing, or not matching its state)."""
+
+
+def abstract_training_state(environment, skills, config, seed: int):
+    """``(abstract TrainingState, fresh_replay())`` of the run ``train(environment, skills,
+    config=config, seed=seed)`` would start: shapes / dtypes / structure to restore into (nothing
+    is computed), and a function returning the empty replay buffer of that run."""
+    import jax
+
+    from parallel_skills.train import make_trainer, resolve
+
+    trainer = make_trainer(environment, skills, resolve(config)[0])
+    key = jax.random.PRNGKey(seed)
+    abstract = jax.eval_shape(trainer.init, key)
+    return abstract, lambda: jax.jit(lambda k: trainer.init(k).replay)(key)
+
+
+def _like_fresh(tree, abstract):
+    """Restored arrays as a fresh run holds them: uncommitted, with the abstract state's weak
+    types (flashbax's write index is a weak int32). Either difference would make jit compile a
+    different program for the same iteration (and miss the compilation cache)."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    def one(x, spec):
+        a = np.asarray(x)
+        if getattr(spec, "weak_type", False):
+            if a.ndim == 0:
+                out = jnp.asarray(a.item())  # a Python scalar gives a weak-typed array
+                if out.dtype == spec.dtype and out.weak_type:
+                    return out
+            from jax._src.lax.lax import _convert_element_type  # no public API makes weak types
+
+            return _convert_element_type(jax.device_put(a), spec.dtype, weak_type=True)
+        return jax.device_put(a)
+
+    return jax.tree.map(one, tree, abstract)
+
+
+class Checkpointer:
+    """Saves and restores checkpoints in ``run_dir/checkpoints`` (see the module docstring)."""
+
+    def __init__(self, run_dir: str, *, save_replay: bool = True, max_to_keep: int = MAX_TO_KEEP):
+        self.directory = os.path.abspath(os.path.join(run_dir, CHECKPOINT_SUBDIR))
+        self.save_replay = bool(save_replay)
+        self.max_to_keep = int(max_to_keep)
+        self._manager = None
+
+    def _mgr(self):
+        if self._manager is None:
+            import orbax.checkpoint as ocp
+
+            options = ocp.CheckpointManagerOptions(max_to_keep=self.max_to_keep, create=True,
+                                                   enable_async_checkpointing=False)
+            self._manager = ocp.CheckpointManager(self.directory, options=options)
+        return self._manager
+
+    def steps(self) -> list[int]:
+        """Iterations of the complete checkpoints on disk, ascending (unfinished saves excluded)."""
+        if not os.path.isdir(self.directory):
+            return []
+        return sorted(int(s) for s in self._mgr().all_steps())
+
+    def latest_step(self) -> Optional[int]:
+        steps = self.steps()
+        return steps[-1] if steps else None
+
+    def save(self, state, host_state: dict) -> None:
+        """Write the checkpoint of iteration ``host_state["iteration"]`` (blocks until on disk)."""
+        import orbax.checkpoint as ocp
+
+        host = dict(host_state, replay_saved=self.save_replay)
+        items = {"state": ocp.args.StandardSave(state.replace(replay=None)), "host": ocp.args.JsonSave(host)}
+        if self.save_replay:
+            items["replay"] = ocp.args.StandardSave(state.replay)
+        mgr = self._mgr()
+        mgr.save(int(host["iteration"]), args=ocp.args.Composite(**items))
+        mgr.wait_until_finished()
+
+    def restore(self, abstract_state, fresh_replay: Optional[Callable] = None, step: Optional[int] = None):
+        """``(TrainingState, host_state)`` of checkpoint ``step`` (default: the latest).
+
+        ``abstract_state``: the run's state structure (``abstract_training_state``).
+        ``fresh_replay()``: the empty buffer to start from when the checkpoint holds no replay."""
+        import orbax.checkpoint as ocp
+
+        step = self.latest_step() if step is None else int(step)
+        if step is None:
+            raise CheckpointError(f"no checkpoint in {self.directory}")
+        mgr = self._mgr()
+        try:
+            host = mgr.restore(step, args=ocp.args.Composite(host=ocp.args.JsonRestore())).host
+            items = {"state": ocp.args.StandardRestore(abstract_state.replace(replay=None))}
+            if host.get("replay_saved", True):
+                items["replay"] = ocp.args.StandardRestore(abstract_state.replay)
+            restored = mgr.restore(step, args=ocp.args.Composite(**items))
+        except Exception as e:  # orbax raises several types for a tree / shape mismatch
+            first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+            raise CheckpointError(f"checkpoint {os.path.join(self.directory, str(step))} does not match this "
+                                  f"run's training state ({type(e).__name__}: {first[:200]})") from None
+        state = _like_fresh(restored.state, abstract_state.replace(replay=None))
+        if host.get("replay_saved", True):
+            replay = _like_fresh(restored.replay, abstract_state.replay)
+        elif fresh_replay is not None:
+            replay = fresh_replay()
+        else:
+            raise CheckpointError(f"checkpoint {step} holds no replay buffer; pass fresh_replay to start an empty one")
+        state = state.replace(replay=replay)
+        if int(state.iteration) != step:
+            raise CheckpointError(f"checkpoint {step} holds the state of iteration {int(state.iteration)}")
+        return state, host
+
+    def close(self) -> None:
+        if self._manager is not None:
+            self._manager.close()
+            self._manager = None
