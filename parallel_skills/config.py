@@ -90,7 +90,12 @@ class NewSkillConfig:
     mpo_init_log_alpha_mean: float = 1.0
     mpo_init_log_alpha_stddev: float = 10.0
     dual_learning_rate: float = 1e-2
-    min_std: float = 1e-3
+    # Lower bound of the policy's std (actions in [-1, 1]). With a state-dependent std and a
+    # near-zero floor, the weighted log-likelihood lets the std collapse on easy states and
+    # all but ignore the mean's error on hard ones (the gradient on the mean scales with 1/std²):
+    # cloning the scripted lift with min_std 1e-3 gave success 0.00, with 0.05 0.97
+    # (docs/learning.md). 0.05 keeps every state's error in the loss.
+    min_std: float = 0.05
     grad_clip_norm: float = 40.0
 
     def __post_init__(self):

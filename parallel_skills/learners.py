@@ -284,7 +284,7 @@ def make_new_skill_apply(action_size: int, config: NewSkillConfig
 def new_skill_distribution(params: Params, obs: jnp.ndarray, min_std: float = NewSkillConfig.min_std
                            ) -> Tuple[jnp.ndarray, jnp.ndarray]:
     """New-skill policy apply with sizes inferred from ``params`` (``{"params": ...}``).
-    ``min_std`` must match the config used for training (default 1e-3).
+    ``min_std`` must match the config used for training (default 0.05).
     obs [..., O] -> (mean [..., A], std [..., A])."""
     p = params["params"]
     module = GaussianPolicy(action_size=int(p["head"]["bias"].shape[0]) // 2,

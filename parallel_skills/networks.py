@@ -55,7 +55,7 @@ class GaussianPolicy(nn.Module):
 
     action_size: int
     hidden: Tuple[int, ...] = (128, 256, 128)
-    min_std: float = 1e-3
+    min_std: float = 0.05  # NewSkillConfig.min_std
 
     @nn.compact
     def __call__(self, obs):

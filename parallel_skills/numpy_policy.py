@@ -30,7 +30,7 @@ import numpy as np
 
 LAYER_NORM_EPS = 1e-6  # flax.linen.LayerNorm default
 CLIP = 10.0
-MIN_STD = 1e-3  # networks.GaussianPolicy / NewSkillConfig default
+MIN_STD = 0.05  # networks.GaussianPolicy / NewSkillConfig default
 EXPORT_FORMAT = "parallel_skills.export"
 EXPORT_VERSION = 1
 POLICY_PREFIX = "policy/params/"

@@ -193,7 +193,10 @@ def dynamics(s: KinematicState, action: jax.Array) -> KinematicState:
     # 1. Fingers.
     ap_cmd = jnp.clip(s.aperture + action[4] * L.MAX_FINGER_SPEED * dt, L.APERTURE_CLOSED, L.APERTURE_OPEN)
     closing = ap_cmd < s.aperture
-    release = holding & (ap_cmd > L.CUBE_SIZE + 1e-6)
+    # Opening the pads releases the held cube, unless they would open into another cube.
+    held_mask = (jnp.arange(L.NUM_CUBES) == s.held) & holding
+    release = holding & (ap_cmd > L.CUBE_SIZE + 1e-6) & ~_gripper_hits_cubes(
+        s.pinch, s.yaw, ap_cmd, s.cube_pos, cube_cs, held_mask)
     # Grasp candidates: cubes centred and aligned between the pads.
     rel_all = _pinch_frame(s.pinch, s.yaw, s.cube_pos)  # [3, 3]
     misalign = G.wrap_quarter(s.cube_yaw - s.yaw)

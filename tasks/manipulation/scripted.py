@@ -23,14 +23,19 @@ from tasks.manipulation import layout as L
 
 @dataclasses.dataclass(frozen=True)
 class ControllerParams:
-    gain: float = 1.0  # 1 = deadbeat on the kinematic domain (reach the target in one step if possible)
-    yaw_gain: float = 1.0
+    # Proportional gains (1 = deadbeat on the kinematic domain). Below 1 the commands are smooth
+    # functions of the observation over a band of ~step/gain around each target, not bang-bang.
+    gain: float = 0.3
+    yaw_gain: float = 0.3
     xy_tol: float = 0.004  # aligned over a target when within this (m)
     yaw_tol: float = 0.05  # rad
     z_tol: float = 0.004
     clearance: float = 0.012  # fingertips / held cube clear other cubes by this (m)
     carry_z: float = 0.22  # lift target height of the pinch
     release_gap: float = 0.004  # open when the held cube is this close above its resting height
+    funnel_slope: float = 10.0  # approach: allowed pinch height above the cube per m of xy error
+    funnel_yaw: float = 0.3  # ... and per rad of yaw error
+    avoid_neighbours: bool = False  # grasp yaw: nearest alignment (False) or clear of other cubes
 
 
 Controller = Callable[[jax.Array, jax.Array], jax.Array]
@@ -73,9 +78,14 @@ def _aligned_yaw(v: _View, cube_yaw):
     return v.yaw + G.wrap_quarter(cube_yaw - v.yaw)
 
 
-def _grasp_yaw(v: _View, c: int):
-    """Gripper yaw for grasping cube c: of the two pad orientations that align with its faces,
-    the one whose pads stay farther from the other cubes."""
+def _grasp_yaw(v: _View, c: int, prm: ControllerParams):
+    """Gripper yaw for grasping cube c. ``prm.avoid_neighbours`` False: the nearest yaw that
+    aligns the pads with its faces (a sawtooth of the relative yaw, simple to imitate). True: of
+    the two pad orientations that align with its faces, the one whose pads stay farther from the
+    other cubes (safer among cubes, but a discontinuous function of all cube positions, which
+    neural policies imitate poorly)."""
+    if not prm.avoid_neighbours:
+        return _aligned_yaw(v, v.cube_yaw[c])
     cube = v.cubes[c]
     base = G.wrap_quarter(v.cube_yaw[c])
     others = jnp.array([i != c for i in range(L.NUM_CUBES)])
@@ -96,25 +106,24 @@ PREGRASP_APERTURE = 0.056  # open just enough to pass around a cube: a small foo
 
 
 def _approach(v: _View, c: int, prm: ControllerParams, close: bool):
-    """Go above cube c at a safe height, align, descend with the fingers open just wider than the
-    cube; close if ``close``."""
+    """Approach cube c down a funnel and grasp-align; close the fingers there if ``close``.
+
+    The pinch heads for the cube centre while its height stays above a funnel that rises with
+    the horizontal and yaw misalignment (``funnel_slope`` m/m, ``funnel_yaw`` m/rad), capped at a
+    safe travel height: far away it travels high, over the cube it descends. Unlike a phase
+    machine (rise, travel, align, descend), every command is a continuous function of the
+    observation (up to the closing switch), which a neural policy can imitate (see
+    docs/skills.md)."""
     cube = v.cubes[c]
-    yaw_t = _grasp_yaw(v, c)
+    yaw_t = _grasp_yaw(v, c, prm)
     safe_z = jnp.maximum(v.top() + L.FINGER_BELOW_PINCH + prm.clearance, cube[2] + 0.045)
     dxy = jnp.linalg.norm(cube[:2] - v.p[:2])
-    over = (dxy <= prm.xy_tol) & (jnp.abs(G.wrap_angle(yaw_t - v.yaw)) <= prm.yaw_tol)
-    low = v.p[2] < safe_z - 0.01
-    at_cube = over & (jnp.abs(v.p[2] - cube[2]) <= prm.z_tol)
-    opened = v.ap >= PREGRASP_APERTURE - 0.002
-    # Not over the cube: rise first if low, then travel at the safe height.
-    travel_xy = jnp.where(low, v.p[:2], cube[:2])
-    travel = jnp.concatenate([travel_xy, safe_z[None]])
-    descend = jnp.concatenate([cube[:2], cube[2][None]])
-    target = jnp.where(over & opened, descend, jnp.where(over, v.p, travel))
-    target = jnp.where(over & ~opened & ~at_cube, jnp.concatenate([cube[:2], v.p[2:3]]), target)
-    to_pregrasp = jnp.clip((PREGRASP_APERTURE - v.ap) / (L.MAX_FINGER_SPEED * L.CONTROL_DT), -1.0, 1.0)
-    # Wide open while travelling high, pre-grasp aperture near the cube, closing at the cube.
-    finger = jnp.where(over | ~low, to_pregrasp, 1.0)
+    yaw_err = jnp.abs(G.wrap_angle(yaw_t - v.yaw))
+    funnel = cube[2] + prm.funnel_slope * jnp.maximum(dxy - prm.xy_tol, 0.0) \
+        + prm.funnel_yaw * jnp.maximum(yaw_err - prm.yaw_tol, 0.0)
+    target = jnp.concatenate([cube[:2], jnp.minimum(funnel, safe_z)[None]])
+    at_cube = (dxy <= prm.xy_tol) & (yaw_err <= prm.yaw_tol) & (jnp.abs(v.p[2] - cube[2]) <= prm.z_tol)
+    finger = jnp.clip((PREGRASP_APERTURE - v.ap) / (L.MAX_FINGER_SPEED * L.CONTROL_DT), -1.0, 1.0)
     finger = jnp.where(at_cube & close, -1.0, finger)
     return _action(v, target, yaw_t, finger, prm)
 
