@@ -121,6 +121,20 @@ def _finite(x):
     return jnp.all(jnp.isfinite(x.reshape(x.shape[0], -1)), axis=-1)
 
 
+def skill_run_ends(i_prev, first_prev, i, is_decision, done, num_skills: int):
+    """Maximal consecutive runs of one skill that end at an acting step, as counts per skill
+    [..., num_skills] (for usage plots: average consecutive execution = skill steps / runs).
+
+    A run goes on across decisions that choose the same skill again. It ends at an episode end
+    (``done``: the run of ``i``, the skill that acted at this step) or when a decision switches
+    skill (the run of ``i_prev`` ended at the previous step; counted at this step).
+    ``first_prev``: this step starts an episode, so no run of ``i_prev`` goes on into it.
+    """
+    switched = is_decision & ~first_prev & (i != i_prev)
+    return (jax.nn.one_hot(i, num_skills) * done[..., None].astype(jnp.float32)
+            + jax.nn.one_hot(i_prev, num_skills) * switched[..., None].astype(jnp.float32))
+
+
 @dataclasses.dataclass(frozen=True)
 class Trainer:
     """Pure functions of a configured run (see ``make_trainer``)."""
@@ -227,6 +241,7 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
         stats = dict(
             done=done, ep_return=ep_return, ep_success=ep_success, nonfinite=(~finite).astype(jnp.float32),
             new_skill_active=(i == new_index).astype(jnp.float32),
+            skill_runs=skill_run_ends(actor.i, actor.first, i, is_decision, done, n_total),
         )
 
         def do_reset(_):
@@ -322,6 +337,9 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
             "length_histogram": jnp.sum(jax.nn.one_hot(traj["k_idx"], sc.num_lengths) * dec[..., None], axis=(0, 1)),
             # Steps each skill acted (for usage plots: average consecutive execution per skill).
             "skill_steps": jnp.sum(jax.nn.one_hot(traj["skill"], n_total), axis=(0, 1)),
+            # Maximal consecutive runs of each skill that ended (skill_steps / skill_runs = the
+            # average consecutive execution, paper Fig. 4c).
+            "skill_runs": jnp.sum(stats["skill_runs"], axis=(0, 1)),
         }
         metrics.update({f"scheduler/{k}": v for k, v in sched_m.items()})
         metrics.update({f"new_skill/{k}": v for k, v in new_m.items()})
@@ -508,7 +526,8 @@ def train(
 class _Accumulator:
     """Training-episode statistics summed over the iterations between two reports."""
 
-    SUMMED = ("episodes", "nonfinite_transitions", "skill_histogram", "length_histogram", "skill_steps")
+    SUMMED = ("episodes", "nonfinite_transitions", "skill_histogram", "length_histogram", "skill_steps",
+              "skill_runs")
 
     def __init__(self):
         self.sums: dict = {}

@@ -9,7 +9,10 @@ Writes into ``--out`` (a new directory; an existing one is only ever written int
 run), ``metrics.csv`` (one row per evaluation), ``checkpoints/`` (full training state, the latest
 2, see ``training.checkpointing``), ``new_skill.npz`` + ``.json`` (the new skill as a loadable
 skill: ``python -m training.evaluate --policy DIR/new_skill.npz``) and ``export.npz`` + ``.json``
-(new skill and scheduler, ``training.export``).
+(new skill and scheduler, ``training.export``), TensorBoard event files (``tensorboard --logdir
+DIR``; ``training.logging_utils``), ``curves.png`` and ``skill_usage.png`` (``training.plot``) and,
+with ``--video``, ``new_skill.mp4`` (or ``.gif`` without ffmpeg; ``training.video``).
+Progress: one line per evaluation on stdout, plus a progress bar on stderr when it is a terminal.
 The last line printed is ``success=<new skill alone> return=<mean>``.
 
 Settings come from, in increasing precedence: the defaults, ``--config FILE.json`` (any
@@ -29,6 +32,7 @@ import sys
 import time
 
 from training.cli import Parser, UsageError, main_guard, nonnegative_int, positive_int
+from training.logging_utils import Progress, TensorBoardLogger, format_row
 
 DEFAULT_TIMESTEPS = {"cpu": 400_000, "accelerator": 20_000_000}
 # Flags whose defaults are applied after parsing (None = "not given": --resume rejects given flags
@@ -41,7 +45,7 @@ POSITIVE_FIELDS = {"num_envs", "replay_size", "unroll_length", "eval_episodes", 
 CSV_FIELDS = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skill_return", "eval/scheduler_success",
               "eval/scheduler_return", "episode_success", "episode_return", "new_skill_selection_rate",
               "scheduler/critic_loss", "new_skill/critic_loss", "scheduler/policy_entropy_i", "skill_histogram",
-              "length_histogram", "skill_steps"]
+              "length_histogram", "skill_steps", "skill_runs"]
 DEFAULT_CACHE_DIR = os.path.join(os.path.expanduser("~"), ".cache", "parallel_skills_jax")
 
 
@@ -69,6 +73,9 @@ def build_parser():
                    help="continue the run in the existing --out from its latest checkpoint, with its config.json")
     p.add_argument("--checkpoint_every", type=positive_int, default=None,
                    help="env steps between checkpoints (default: at every evaluation); the latest 2 are kept")
+    p.add_argument("--video", action="store_true",
+                   help="at the end, write DIR/new_skill.mp4 (or .gif without ffmpeg): one episode of the new skill "
+                        "alone, rendered headless (MUJOCO_GL=egl, else osmesa)")
     p.add_argument("--no-replay-checkpoint", dest="no_replay_checkpoint", action="store_true",
                    help="leave the replay buffer out of checkpoints (smaller; a resume then starts with an "
                         "empty buffer and is no longer identical to an uninterrupted run)")
@@ -257,7 +264,7 @@ def prepare_new(args, argv):
            "skills": names, "seed": a["seed"], "num_timesteps": num_timesteps,
            "episode_length": int(getattr(env, "episode_length", 0)) or args.episode_length,
            "checkpoint_every": args.checkpoint_every, "replay_checkpoint": not args.no_replay_checkpoint,
-           "train_config": dataclasses.asdict(resolved), "auto": notes}
+           "video": bool(args.video), "train_config": dataclasses.asdict(resolved), "auto": notes}
     try:
         os.makedirs(out)
     except OSError as e:
@@ -348,15 +355,51 @@ def prepare_resume(args):
 
 # ----------------------------------------------------------------------------- running
 
+def _csv_header(path):
+    with open(path, newline="") as f:
+        return next(csv.reader(f), None)
+
+
+def _write_plots(out):
+    """DIR/curves.png and DIR/skill_usage.png; a failure is reported, not fatal (the run is saved)."""
+    try:
+        from training.plot import write_run_plots
+
+        paths = write_run_plots(out)
+    except ImportError as e:
+        print(f"plots skipped: {e} (pip install 'parallel-skills[plots]')", file=sys.stderr)
+    except Exception as e:  # noqa: BLE001 - plots are a by-product: never lose a finished run to them
+        print(f"plots skipped: {type(e).__name__}: {e}", file=sys.stderr)
+    else:
+        print(f"plots saved: {', '.join(paths)}")
+
+
+def _write_video(out, env, make_policy, params, seed, episode_length):
+    """DIR/new_skill.mp4 (or .gif): one episode of the new skill alone; failures are reported."""
+    import jax
+
+    from training.video import VideoError, record_policy
+
+    try:
+        path = record_policy(env, make_policy(params, "new_skill"), os.path.join(out, "new_skill"),
+                             key=jax.random.PRNGKey(seed + 20_000), episode_length=episode_length)
+    except VideoError as e:
+        print(f"video skipped: {e}", file=sys.stderr)
+    except Exception as e:  # noqa: BLE001 - as for plots: the trained run is what matters
+        print(f"video skipped: {type(e).__name__}: {e}", file=sys.stderr)
+    else:
+        print(f"video saved: {path}")
+
+
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     enable_compilation_cache()
     out, run, resolved, env = main_guard(lambda: prepare_resume(args) if args.resume else prepare_new(args, argv))
-    _train(out, run, resolved, env, resume=args.resume)
+    _train(out, run, resolved, env, resume=args.resume, video=args.video or bool(run.get("video")))
 
 
-def _train(out, run, resolved, env, resume: bool):
+def _train(out, run, resolved, env, resume: bool, video: bool = False):
     from parallel_skills import Skill, train
     from parallel_skills.normalization import std as norm_std
     from tasks.manipulation import scripted
@@ -404,6 +447,13 @@ def _train(out, run, resolved, env, resume: bool):
     t0 = time.perf_counter()
     start_steps = int(host_state["env_steps"]) if host_state else 0
     csv_rows = int(host_state["csv_rows"]) if host_state else 0
+    # A resumed run keeps the columns its metrics.csv was started with (runs from older versions).
+    header = _csv_header(csv_path) if resume else None
+    fields = header or CSV_FIELDS
+    # TensorBoard: a resume opens a new event file that purges the steps past the checkpoint.
+    tb = TensorBoardLogger(out, names, resolved.scheduler.skill_lengths,
+                           purge_step=start_steps + 1 if resume else None)
+    bar = Progress(num_timesteps, start_steps)
 
     with open(csv_path, "ab" if resume else "wb") as f:
         def write_row(row):
@@ -412,18 +462,15 @@ def _train(out, run, resolved, env, resume: bool):
             f.write(buf.getvalue().encode())
             f.flush()
 
-        if not resume:
-            write_row(CSV_FIELDS)
+        if not header:
+            write_row(fields)
 
         def progress(steps, m):
             nonlocal csv_rows
-            write_row([json.dumps(m[k]) if isinstance(m.get(k), list) else m.get(k, "") for k in CSV_FIELDS])
+            write_row(format_row(m, fields))
             csv_rows += 1
-            rate = (steps - start_steps) / max(time.perf_counter() - t0, 1e-9)
-            sched = f" scheduler={m['eval/scheduler_success']:.2f}" if "eval/scheduler_success" in m else ""
-            print(f"[{steps:>10,d} steps {rate:8,.0f}/s] new_skill success={m['eval/new_skill_success']:.2f}"
-                  f" return={m['eval/new_skill_return']:.1f}{sched} train_success={m['episode_success']:.2f}"
-                  f" new_skill_rate={m['new_skill_selection_rate']:.2f}", flush=True)
+            tb.log(steps, m)
+            bar.update(steps, m)
 
         def checkpoint(state, host):
             os.fsync(f.fileno())  # the rows this checkpoint covers are on disk first
@@ -433,6 +480,8 @@ def _train(out, run, resolved, env, resume: bool):
             env, skills, num_timesteps=num_timesteps, seed=seed, config=resolved, progress_fn=progress,
             initial_state=initial_state, host_state=host_state, checkpoint_fn=checkpoint,
             checkpoint_every=run["checkpoint_every"])
+    bar.close()
+    tb.close()
     ckpt.close()
 
     stats = params["normalizer"]
@@ -444,6 +493,9 @@ def _train(out, run, resolved, env, resume: bool):
                success=metrics["eval/new_skill_success"], trained_with=names, env_steps=metrics["env_steps"])
     print(f"new skill saved: {os.path.join(out, 'new_skill.npz')}  ({metrics['env_steps']:,} env steps, "
           f"{time.perf_counter() - t0:.0f} s)")
+    _write_plots(out)
+    if video:
+        _write_video(out, env, make_policy, params, seed, int(run.get("episode_length") or 0) or None)
     meta = {"skills": names, "seed": seed, "env_steps": metrics["env_steps"], "command": run["command"],
             "skill_set": run["skill_set"], "num_timesteps": num_timesteps,
             "success": metrics["eval/new_skill_success"], "return": metrics["eval/new_skill_return"]}
