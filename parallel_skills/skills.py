@@ -90,21 +90,38 @@ class Skill:
 
     @staticmethod
     def load(path: str, obs_size: Optional[int] = None, action_size: Optional[int] = None) -> "Skill":
-        """Load a Gaussian-MLP skill saved by ``save``; check sizes against a task if given."""
+        """Load a Gaussian-MLP skill saved by ``save``; check sizes against a task if given
+        (``obs_size`` / ``action_size``: the env's ``observation_size`` / ``action_size``).
+
+        Every array's shape is checked against the sidecar's sizes (``obs_size``, ``hidden``,
+        ``action_size``), so the observation size is known even if the sidecar omits it. Any problem
+        (missing, corrupt or mismatched files, sizes that differ from the task's) is a ValueError
+        with a one-line message naming the file."""
+        from parallel_skills.numpy_policy import EXPORT_FORMAT, NumpyGaussianPolicy
+
         base = path[:-4] if path.endswith(".npz") else path
         flat, meta = read_npz_json(path)  # ValueError if missing, truncated or corrupt
-        params = _unflatten(flat)
+        if meta.get("format") == EXPORT_FORMAT:
+            raise ValueError(f"{base}.npz is an export, not a single skill (load it with "
+                             f"parallel_skills.numpy_policy.load_export)")
         hidden, a_size = meta.get("hidden"), meta.get("action_size")
         if hidden is None or a_size is None:
             raise ValueError(f"skill sidecar {base}.json lacks 'hidden' or 'action_size'")
-        skill = Skill.gaussian_mlp(meta.get("name", os.path.basename(base)), jax.tree.map(jnp.asarray, params),
-                                   a_size, hidden, **{k: v for k, v in meta.items() if k not in ("hidden", "action_size", "name", "arch")})
-        o_size = meta.get("obs_size")
-        if obs_size is not None and o_size is not None and int(o_size) != int(obs_size):
+        try:
+            hidden, a_size = [int(h) for h in hidden], int(a_size)
+            o_meta = None if meta.get("obs_size") is None else int(meta["obs_size"])
+            # Shapes of every array against the recorded sizes (obs_size from obs_mean if unrecorded).
+            o_size = NumpyGaussianPolicy(flat, hidden, a_size, obs_size=o_meta).obs_size
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"skill {base}.npz: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
+        if obs_size is not None and o_size != int(obs_size):
             raise ValueError(f"skill {base}.npz expects observations of size {o_size}, the task gives {obs_size}")
-        if action_size is not None and int(a_size) != int(action_size):
+        if action_size is not None and a_size != int(action_size):
             raise ValueError(f"skill {base}.npz produces actions of size {a_size}, the task takes {action_size}")
-        return skill
+        params = _unflatten(flat)
+        rest = {k: v for k, v in meta.items() if k not in ("hidden", "action_size", "name", "arch", "obs_size")}
+        return Skill.gaussian_mlp(meta.get("name", os.path.basename(base)), jax.tree.map(jnp.asarray, params),
+                                  a_size, hidden, obs_size=o_size, **rest)
 
 
 def _flatten(params: Params) -> dict:

@@ -180,25 +180,9 @@ def main(argv=None):
     args = p.parse_args(argv)
 
     def run():
-        if args.task not in tasks.names():
-            raise UsageError(f"unknown task {args.task!r}; valid tasks: {', '.join(tasks.names())}")
-        if args.physics not in tasks.PHYSICS:
-            raise UsageError(f"unknown physics {args.physics!r}; valid: {', '.join(tasks.PHYSICS)}")
-        kind, target, suffix = parse_policy(args.policy)
-        if kind == "scripted":
-            from tasks.manipulation import scripted
-
-            if target not in scripted.names():
-                raise UsageError(f"unknown scripted policy {target!r}; valid: {', '.join(scripted.names())}")
-        export = None
-        if kind == "export":
-            from parallel_skills.numpy_policy import load_export
-
-            export = load_export(target)
-        if args.physics == "mujoco" and kind != "scripted":
-            result, lines = _evaluate_on_twin(args, kind, target, export, suffix)
-        else:
-            result, lines = _evaluate_on_jax_env(args, kind, target, export, suffix)
+        result = evaluate_policy(args.task, args.physics, args.policy, episodes=args.episodes, seed=args.seed,
+                                 episode_length=args.episode_length)
+        lines = result.pop("lines")
         success = float(np.mean(result["success"]))
         ret = float(np.mean(result["return"]))
         print(f"task={args.task} physics={args.physics} policy={args.policy} episodes={args.episodes}")
@@ -207,6 +191,39 @@ def main(argv=None):
         print(f"success={success:.4f} return={ret:.3f}")
 
     main_guard(run)
+
+
+def evaluate_policy(task: str, physics: str, policy: str, episodes: int = 64, seed: int = 0,
+                    episode_length: int | None = None) -> dict:
+    """What ``python -m training.evaluate`` computes, as a function: per-episode ``success`` and
+    ``return`` arrays of ``policy`` (a ``--policy`` spec) on ``task`` / ``physics``, plus ``lines``
+    (the extra report lines). UsageError / ValueError on bad input."""
+    import argparse
+
+    import tasks
+
+    if task not in tasks.names():
+        raise UsageError(f"unknown task {task!r}; valid tasks: {', '.join(tasks.names())}")
+    if physics not in tasks.PHYSICS:
+        raise UsageError(f"unknown physics {physics!r}; valid: {', '.join(tasks.PHYSICS)}")
+    args = argparse.Namespace(task=task, physics=physics, policy=policy, episodes=int(episodes), seed=int(seed),
+                              episode_length=episode_length)
+    kind, target, suffix = parse_policy(policy)
+    if kind == "scripted":
+        from tasks.manipulation import scripted
+
+        if target not in scripted.names():
+            raise UsageError(f"unknown scripted policy {target!r}; valid: {', '.join(scripted.names())}")
+    export = None
+    if kind == "export":
+        from parallel_skills.numpy_policy import load_export
+
+        export = load_export(target)
+    if physics == "mujoco" and kind != "scripted":
+        result, lines = _evaluate_on_twin(args, kind, target, export, suffix)
+    else:
+        result, lines = _evaluate_on_jax_env(args, kind, target, export, suffix)
+    return dict(result, lines=lines)
 
 
 def _usage_line(export, policy) -> list[str]:

@@ -31,13 +31,14 @@ import os
 import sys
 import time
 
-from training.cli import Parser, UsageError, main_guard, nonnegative_int, positive_int
+from training.cli import Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int
 from training.logging_utils import Progress, TensorBoardLogger, format_row
 
 DEFAULT_TIMESTEPS = {"cpu": 400_000, "accelerator": 20_000_000}
 # Flags whose defaults are applied after parsing (None = "not given": --resume rejects given flags
 # that conflict with the run's config.json).
-DEFAULTS = dict(task="lift", physics="kinematic", seed=0, skills="useful", method="skills", eval_episodes=32)
+DEFAULTS = dict(task="lift", physics="kinematic", seed=0, skills="useful", skill_source="scripted", method="skills",
+                eval_episodes=32)
 METHODS = ("skills", "scratch")
 # Integer config fields that must be >= 1 (other integer fields must be >= 0).
 POSITIVE_FIELDS = {"num_envs", "replay_size", "unroll_length", "eval_episodes", "eval_every", "batch_size",
@@ -51,7 +52,7 @@ DEFAULT_CACHE_DIR = os.path.join(os.path.expanduser("~"), ".cache", "parallel_sk
 
 def build_parser():
     import tasks
-    from tasks.manipulation.skill_sets import SET_NAMES
+    from tasks.manipulation.skill_sets import SET_NAMES, SOURCES
 
     p = Parser(prog="python -m training.run", description=__doc__.splitlines()[0])
     p.add_argument("--task", default=None, help="task name (see tasks.names()); default lift")
@@ -61,6 +62,9 @@ def build_parser():
     p.add_argument("--episode_length", type=positive_int, default=None)
     p.add_argument("--seed", type=nonnegative_int, default=None, help="default 0")
     p.add_argument("--skills", default=None, help=f"skill set: {', '.join(SET_NAMES)}; default useful")
+    p.add_argument("--skill_source", default=None, choices=list(SOURCES),
+                   help="where the set's skills come from: scripted controllers, or the shipped neural library "
+                        "checkpoints/<physics>/<name>.npz (many_useful needs it); default scripted")
     p.add_argument("--method", default=None, choices=list(METHODS), help="default skills")
     p.add_argument("--eval_every", type=positive_int, default=None,
                    help="iterations between evaluations (default: 20 evaluations per run)")
@@ -202,13 +206,7 @@ def _command(argv):
 
 
 def _check_writable(out):
-    parent = os.path.dirname(os.path.abspath(out))
-    while not os.path.exists(parent):
-        parent = os.path.dirname(parent)
-    if not os.path.isdir(parent):
-        raise UsageError(f"cannot create the run directory {out}: {parent} is not a directory")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise UsageError(f"cannot write the run directory {out}: {parent} is not writable")
+    check_writable(out, "the run directory")
 
 
 def prepare_new(args, argv):
@@ -259,9 +257,10 @@ def prepare_new(args, argv):
     resolved = dataclasses.replace(resolved, eval_every=eval_every)
     overrides = {} if args.episode_length is None else {"episode_length": args.episode_length}
     env = tasks.make(a["task"], physics=a["physics"], **overrides)  # validates the overrides
+    skill_sets.load_skills(names, a["physics"], a["skill_source"], env.observation_size, env.action_size)  # exist, fit
 
     run = {"command": _command(argv), "task": a["task"], "physics": a["physics"], "skill_set": a["skills"],
-           "skills": names, "seed": a["seed"], "num_timesteps": num_timesteps,
+           "skill_source": a["skill_source"], "skills": names, "seed": a["seed"], "num_timesteps": num_timesteps,
            "episode_length": int(getattr(env, "episode_length", 0)) or args.episode_length,
            "checkpoint_every": args.checkpoint_every, "replay_checkpoint": not args.no_replay_checkpoint,
            "video": bool(args.video), "train_config": dataclasses.asdict(resolved), "auto": notes}
@@ -310,12 +309,14 @@ def prepare_resume(args):
     except (OSError, ValueError) as e:
         raise UsageError(f"cannot resume: {cfg_path} is unreadable or invalid: {str(e).splitlines()[0]}") from None
     run.setdefault("skill_set", None)
+    run.setdefault("skill_source", "scripted")
     run.setdefault("episode_length", None)
     run.setdefault("checkpoint_every", None)
     run.setdefault("replay_checkpoint", True)
 
     given = {"task": (args.task, run["task"]), "physics": (args.physics, run["physics"]),
-             "skills": (args.skills, run["skill_set"]), "seed": (args.seed, run["seed"]),
+             "skills": (args.skills, run["skill_set"]), "skill_source": (args.skill_source, run["skill_source"]),
+             "seed": (args.seed, run["seed"]),
              "method": (args.method, resolved.method), "num_timesteps": (args.num_timesteps, run["num_timesteps"]),
              "num_envs": (args.num_envs, resolved.num_envs), "episode_length": (args.episode_length, run["episode_length"]),
              "eval_every": (args.eval_every, resolved.eval_every),
@@ -340,7 +341,7 @@ def prepare_resume(args):
     from tasks.manipulation import scripted
 
     unknown = [n for n in run["skills"] if n not in scripted.names()]
-    if unknown:
+    if unknown and run["skill_source"] == "scripted":  # (library skills are checked when loaded)
         raise UsageError(f"cannot resume: {cfg_path} names skills {unknown} this version does not have")
     if os.path.exists(os.path.join(out, "export.json")):
         raise UsageError(f"run {out} is complete (it has export.json); nothing to resume")
@@ -402,12 +403,13 @@ def main(argv=None):
 def _train(out, run, resolved, env, resume: bool, video: bool = False):
     from parallel_skills import Skill, train
     from parallel_skills.normalization import std as norm_std
-    from tasks.manipulation import scripted
+    from tasks.manipulation import skill_sets
     from training.checkpointing import Checkpointer, CheckpointError, abstract_training_state
     from training.export import write_export
 
     names = list(run["skills"])
-    skills = [Skill.from_fn(n, scripted.get(n), source="scripted") for n in names]
+    skills = main_guard(lambda: skill_sets.load_skills(names, run["physics"], run.get("skill_source", "scripted"),
+                                                       env.observation_size, env.action_size))
     seed, num_timesteps = int(run["seed"]), int(run["num_timesteps"])
     ckpt = Checkpointer(out, save_replay=run["replay_checkpoint"])
     csv_path = os.path.join(out, "metrics.csv")

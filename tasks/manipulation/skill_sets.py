@@ -1,10 +1,16 @@
 """Skill sets per task from the paper's App. C skill table ("useful" and "distractor" skills).
 
-Names refer to skills; today they are backed by the scripted controllers of ``scripted`` (the
-neural skill library replaces them where shipped).
+Names refer to skills, backed either by the scripted controllers of ``scripted``
+(``source="scripted"``) or by the shipped neural library ``checkpoints/<physics>/<name>.npz``
+(``source="library"``, Gaussian-MLP skills trained by ``training.train_skill``): see ``load_skills``.
+``many_useful`` is the paper's "many useful skills" ablation: 3 seeds of each useful skill, named
+``NAME`` (seed 0), ``NAME.s1`` and ``NAME.s2``, which only the library has.
 """
 
 from __future__ import annotations
+
+import os
+import re
 
 _LIFT_USEFUL = ["reach_green", "lift_arm_closed"]
 _LIFT_DISTRACT = ["reach_yellow", "reach_blue", "open_fingers", "lift_arm_open"]
@@ -27,7 +33,13 @@ TABLE = {
 TABLE["lift_green"] = TABLE["lift"]
 TABLE["stack_green_on_yellow"] = TABLE["stack"]
 
-SET_NAMES = ("useful", "useful+distractors", "distractors")
+SET_NAMES = ("useful", "useful+distractors", "distractors", "many_useful")
+SOURCES = ("scripted", "library")
+MANY_SEEDS = 3  # skills per useful skill in "many_useful" (paper App. C: 3 seeds)
+# The shipped skill library: checkpoints/<physics>/<name>.npz + .json (repository root).
+LIBRARY_ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
+                            "checkpoints")
+_SEED_SUFFIX = re.compile(r"^(?P<base>.+)\.s(?P<seed>[0-9]+)$")
 
 
 def skill_names(task: str, which: str = "useful") -> list[str]:
@@ -41,4 +53,59 @@ def skill_names(task: str, which: str = "useful") -> list[str]:
         return list(distract)
     if which == "useful+distractors":
         return list(useful) + list(distract)
+    if which == "many_useful":
+        return [n if s == 0 else f"{n}.s{s}" for n in useful for s in range(MANY_SEEDS)]
     raise ValueError(f"unknown skill set {which!r}; valid: {', '.join(SET_NAMES)}")
+
+
+def split_seed(name: str) -> tuple[str, int]:
+    """``"reach_green.s1"`` -> ``("reach_green", 1)``; a name without suffix is seed 0."""
+    m = _SEED_SUFFIX.match(name)
+    return (m["base"], int(m["seed"])) if m else (name, 0)
+
+
+def library_path(physics: str, name: str, root: str | None = None) -> str:
+    """``checkpoints/<physics>/<name>.npz`` of the shipped library (``root`` replaces checkpoints/)."""
+    return os.path.join(root or LIBRARY_ROOT, physics, f"{name}.npz")
+
+
+def load_skills(names, physics: str, source: str = "scripted", obs_size: int | None = None,
+                action_size: int | None = None, root: str | None = None) -> list:
+    """The skills ``names`` as ``parallel_skills.Skill`` objects, from ``source``:
+
+    * ``"scripted"``: ``Skill.from_fn(name, scripted.get(name))`` (any physics);
+    * ``"library"``: ``Skill.load(checkpoints/<physics>/<name>.npz)``, sizes checked against
+      ``obs_size`` / ``action_size``, named ``name``.
+
+    ValueError (one line) naming the missing file or the mismatch."""
+    from parallel_skills import Skill
+
+    names = list(names)
+    if source == "scripted":
+        from tasks.manipulation import scripted
+
+        for n in names:
+            base, seed = split_seed(n)
+            if seed and base in scripted.names():
+                raise ValueError(f"skill {n!r} is seed {seed} of {base!r}, which only the neural library has "
+                                 f"(scripted controllers have no seeds): use the library source "
+                                 f"(training.run --skill_source library)")
+            if n not in scripted.names():
+                raise ValueError(f"no scripted controller {n!r}; valid: {', '.join(scripted.names())}")
+        return [Skill.from_fn(n, scripted.get(n), source="scripted") for n in names]
+    if source != "library":
+        raise ValueError(f"unknown skill source {source!r}; valid: {', '.join(SOURCES)}")
+    import dataclasses
+
+    skills = []
+    for n in names:
+        path = library_path(physics, n, root)
+        base, seed = split_seed(n)
+        if not (os.path.isfile(path) and os.path.isfile(path[:-4] + ".json")):
+            missing = path if not os.path.isfile(path) else path[:-4] + ".json"
+            raise ValueError(f"skill {n!r} is not in the {physics} skill library: {missing} does not exist "
+                             f"(train it: python -m training.train_skill --skill {base} --physics {physics} "
+                             f"--seed {seed} --out {path}; higher skills come from SkillS runs)")
+        skill = Skill.load(path, obs_size=obs_size, action_size=action_size)
+        skills.append(dataclasses.replace(skill, name=n, metadata=dict(skill.metadata, source="library", path=path)))
+    return skills
