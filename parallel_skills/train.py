@@ -45,6 +45,11 @@ class TrainConfig:
     method: str = "skills"  # "skills" (SkillS) or "scratch" (the new skill acting alone)
     eval_episodes: int = 16
     eval_every: int = 20  # iterations between evaluations
+    # Std of Gaussian noise added to the frozen skills' actions while collecting (not in
+    # evaluation). The paper's skills are stochastic Gaussian policies; deterministic (e.g.
+    # scripted) skills give the new skill no data off their exact paths to learn recovery
+    # from: cloning scripted lift from its noise-free paths fails (docs/learning.md).
+    skill_noise_std: float = 0.3
     scheduler: SchedulerConfig = SchedulerConfig()
     new_skill: NewSkillConfig = NewSkillConfig()
 
@@ -223,6 +228,9 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
         mean, std = new_apply(new_params, nobs)
         new_action = networks.deterministic_action(mean) if greedy else networks.sample_action(mean, std, k_a)
         action = skill_set.actions(new_action, obs, i, k_s)
+        if config.skill_noise_std > 0 and not greedy:
+            noise = config.skill_noise_std * jax.random.normal(jax.random.fold_in(k_s, 1), action.shape)
+            action = jnp.where((i != new_index)[:, None], jnp.clip(action + noise, -1.0, 1.0), action)
         nxt = jax.vmap(env.step)(actor.env_state, action)
         finite = _finite(nxt.obs) & jnp.isfinite(nxt.reward)
         done = (nxt.done > 0) | ~finite
