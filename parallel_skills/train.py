@@ -169,7 +169,6 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
     new_index = len(skills)
     B, T = int(config.num_envs), int(config.unroll_length)
     sc, nc = config.scheduler, config.new_skill
-    lengths = jnp.asarray(sc.skill_lengths, jnp.int32)
     obs_size, action_size = int(env.observation_size), int(env.action_size)
     sched_apply = learners.make_scheduler_apply(n_total, sc)
     new_apply = learners.make_new_skill_apply(action_size, nc)
