@@ -1,0 +1,234 @@
+"""The shipped skill library (issue 4): every ``checkpoints/<physics>/*.npz`` loads, its sidecar is
+complete and records success ≥ 0.8 on its own task, and 8 episodes of that task reproduce it
+(≥ recorded − 0.15); named skill sets load from the library; ``Skill.load`` rejects mismatched
+files in one line; ``training.train_skill`` end to end on tiny shapes and its one-line errors."""
+
+from __future__ import annotations
+
+import glob
+import json
+import os
+import re
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import tasks
+from parallel_skills import Skill, SkillSet
+from parallel_skills.evaluation import rollout_episodes
+from tasks.manipulation import layout as L
+from tasks.manipulation import skill_sets
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SHIPPED = sorted(glob.glob(os.path.join(ROOT, "checkpoints", "*", "*.npz")))
+SIDECAR_FIELDS = ("name", "task", "domain", "physics", "obs_size", "action_size", "hidden", "min_std", "arch",
+                  "command", "seed", "trained_with", "success", "success_episodes", "eval_seed", "eval_command",
+                  "wall_time_s", "training")
+MIN_SUCCESS = {"mjx": 0.7, "warp": 0.7}  # issue 4: kinematic (and mujoco) 0.8, MJX 0.7
+EPISODES = 8
+
+
+def _meta(path):
+    with open(path[:-4] + ".json") as f:
+        return json.load(f)
+
+
+def _ids(paths):
+    return [os.path.relpath(p, os.path.join(ROOT, "checkpoints")) for p in paths]
+
+
+_EVALUATORS: dict = {}
+
+
+def _evaluator(task, physics):
+    """One jitted 8-episode evaluator per (task, physics): the skill's parameters are an argument,
+    so the seeds of a skill share the compiled function."""
+    if (task, physics) not in _EVALUATORS:
+        env = tasks.make(task, physics=physics)
+        probe = Skill.gaussian_mlp("probe", None, L.ACTION_SIZE, (128, 256, 128))
+
+        @jax.jit
+        def evaluate(params, key):
+            return rollout_episodes(env, lambda obs, k: probe.apply(params, obs, k), key, EPISODES)
+
+        _EVALUATORS[(task, physics)] = evaluate
+    return _EVALUATORS[(task, physics)]
+
+
+def test_the_kinematic_library_is_complete():
+    """Every non-SkillS skill of the appendix table (dense-reward skills), plus 3 seeds of lift's
+    useful skills (many_useful)."""
+    shipped = {os.path.basename(p)[:-4] for p in glob.glob(os.path.join(ROOT, "checkpoints", "kinematic", "*.npz"))}
+    basic = {"reach_green", "reach_yellow", "reach_blue", "open_fingers", "lift_arm_open", "lift_arm_closed",
+             "hover_green_on_yellow", "hover_yellow_on_blue"}
+    assert basic <= shipped, sorted(basic - shipped)
+    assert set(skill_sets.skill_names("lift", "many_useful")) <= shipped
+    # Higher skills (lift X, stack X on Y) come from SkillS runs (training.chain), never cloned here.
+    assert not [n for n in shipped if re.match(r"^(lift|stack)_(green|yellow|blue)", n)]
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=_ids(SHIPPED))
+def test_shipped_skill(path):
+    meta = _meta(path)
+    missing = [k for k in SIDECAR_FIELDS if k not in meta]
+    assert not missing, missing
+    physics = os.path.basename(os.path.dirname(path))
+    stem = os.path.basename(path)[:-4]
+    assert meta["physics"] == physics and meta["domain"] == "manipulation"
+    assert stem == (meta["task"] if meta["seed"] == 0 else f"{meta['task']}.s{meta['seed']}")
+    assert meta["name"] == meta["task"] and meta["task"] in tasks.names()
+    assert (meta["obs_size"], meta["action_size"]) == (L.OBS_SIZE, L.ACTION_SIZE)
+    assert meta["hidden"] == [128, 256, 128] and meta["min_std"] == 0.05  # NewSkillConfig defaults
+    assert meta["trained_with"] in ("bc", "bc+crr")
+    assert meta["command"].startswith("python -m training.train_skill ") and f"--seed {meta['seed']}" in meta["command"]
+    assert f"--out checkpoints/{physics}/{stem}.npz" in meta["command"]
+    assert meta["success_episodes"] == 64
+    assert meta["eval_command"] == (f"python -m training.evaluate --task {meta['task']} --physics {physics} "
+                                    f"--policy checkpoints/{physics}/{stem}.npz --episodes 64 --seed {meta['eval_seed']}")
+    assert meta["success"] >= MIN_SUCCESS.get(physics, 0.8)
+    assert os.path.getsize(path) < 400_000  # weights only
+
+    env = tasks.make(meta["task"], physics=physics)
+    skill = Skill.load(path, obs_size=env.observation_size, action_size=env.action_size)
+    result = _evaluator(meta["task"], physics)(skill.params, jax.random.PRNGKey(1234))
+    success = float(np.mean(result["success"]))
+    assert success >= meta["success"] - 0.15, (success, meta["success"])
+
+
+def test_recorded_success_is_what_training_evaluate_prints(capsys):
+    """The sidecar's success is ``training.evaluate``'s for the same episodes and seed."""
+    from training.evaluate import main
+
+    path = os.path.join(ROOT, "checkpoints", "kinematic", "open_fingers.npz")
+    meta = _meta(path)
+    main(["--task", meta["task"], "--physics", "kinematic", "--policy", path, "--episodes", "64",
+          "--seed", str(meta["eval_seed"])])
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert last.startswith(f"success={meta['success']:.4f} "), (last, meta["success"])
+
+
+# ----------------------------------------------------------------------------- skill sets
+
+def test_many_useful_loads_from_the_library_and_stacks():
+    names = skill_sets.skill_names("lift", "many_useful")
+    assert names == ["reach_green", "reach_green.s1", "reach_green.s2",
+                     "lift_arm_closed", "lift_arm_closed.s1", "lift_arm_closed.s2"]
+    skills = skill_sets.load_skills(names, "kinematic", "library", L.OBS_SIZE, L.ACTION_SIZE)
+    assert [s.name for s in skills] == names
+    assert all(s.metadata["source"] == "library" for s in skills)
+    s_set = SkillSet(skills)
+    assert len(s_set._stacked) == 1 and not s_set._single  # one vmap over the six networks
+    obs = jax.vmap(tasks.make("lift").reset)(jax.random.split(jax.random.PRNGKey(0), 3)).obs
+    acts = s_set.frozen_actions(obs, jax.random.PRNGKey(1))
+    assert acts.shape == (6, 3, L.ACTION_SIZE) and bool(jnp.all(jnp.abs(acts) <= 1.0))
+    assert float(jnp.max(jnp.abs(acts[0] - acts[1]))) > 0  # different seeds, different networks
+
+
+def test_skill_sources_fail_in_one_line(tmp_path):
+    with pytest.raises(ValueError, match=r"kinematic skill library: .*lift_green\.npz does not exist"):
+        skill_sets.load_skills(skill_sets.skill_names("stack", "useful"), "kinematic", "library")
+    with pytest.raises(ValueError, match="seed 1 of 'reach_green', which only the neural library has"):
+        skill_sets.load_skills(["reach_green.s1"], "kinematic", "scripted")
+    with pytest.raises(ValueError, match="mujoco skill library: .*checkpoints/mujoco/reach_green.npz does not exist"):
+        skill_sets.load_skills(["reach_green"], "mujoco", "library", root=str(tmp_path / "checkpoints"))
+    scripted = skill_sets.load_skills(["reach_green", "open_fingers"], "kinematic", "scripted")
+    assert [s.params for s in scripted] == [None, None]
+
+
+def test_training_run_library_source_errors(tmp_path, capsys):
+    """training.run --skill_source library: a skill that is not shipped is one line naming its file,
+    before anything is written."""
+    from training.run import main
+
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit) as e:
+        main(["--task", "stack", "--skills", "useful", "--skill_source", "library", "--out", str(out)])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: skill 'lift_green' is not in the kinematic skill library")
+    assert "checkpoints/kinematic/lift_green.npz" in err[0]
+    with pytest.raises(SystemExit) as e:
+        main(["--task", "lift", "--skills", "many_useful", "--out", str(out)])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--skill_source library" in err[0], err
+    assert not out.exists()
+
+
+# ----------------------------------------------------------------------------- Skill.load
+
+def _save_tiny(path, obs_size=60, action_size=5, **meta):
+    from parallel_skills import networks
+
+    net = networks.GaussianPolicy(action_size=action_size, hidden=(8, 8))
+    params = net.init(jax.random.PRNGKey(0), jnp.zeros((1, obs_size)))
+    skill = Skill.gaussian_mlp("tiny", {"policy": params, "obs_mean": jnp.zeros(obs_size),
+                                        "obs_std": jnp.ones(obs_size)}, action_size, (8, 8))
+    skill.save(str(path), **meta)
+
+
+def test_load_checks_arrays_against_sidecar_and_task(tmp_path):
+    path = tmp_path / "s.npz"
+    _save_tiny(path)  # no obs_size in the sidecar: inferred from the arrays
+    assert Skill.load(str(path), obs_size=60, action_size=5).metadata["obs_size"] == 60
+    with pytest.raises(ValueError, match=r"s\.npz expects observations of size 60, the task gives 59"):
+        Skill.load(str(path), obs_size=59)
+    meta = json.load(open(tmp_path / "s.json"))
+    for change, needle in [({"obs_size": 61}, "array 'obs_mean' has shape (60,)"),
+                           ({"action_size": 4}, "array 'policy/params/head/kernel' has shape (8, 10)"),
+                           ({"hidden": [8, 16]}, "has shape (8, 8)"),
+                           ({"hidden": "x"}, "s.npz: invalid literal")]:
+        json.dump(dict(meta, **change), open(tmp_path / "s.json", "w"))
+        with pytest.raises(ValueError) as e:
+            Skill.load(str(path), obs_size=60, action_size=5)
+        msg = str(e.value)
+        assert needle in msg and "\n" not in msg, (change, msg)
+
+
+# ----------------------------------------------------------------------------- train_skill CLI
+
+def _fails(main, argv, capsys, needle):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and needle in err[0], err
+
+
+def test_train_skill_errors(tmp_path, capsys):
+    from training.train_skill import main
+
+    existing = tmp_path / "have.npz"
+    _save_tiny(existing)
+    before = existing.read_bytes()
+    _fails(main, ["--skill", "reach_green", "--out", str(existing)], capsys, "already exists")
+    (tmp_path / "only.json").write_text("{}")
+    _fails(main, ["--skill", "reach_green", "--out", str(tmp_path / "only.npz")], capsys, "only.json already exists")
+    _fails(main, ["--skill", "lift_green", "--out", str(tmp_path / "x.npz")], capsys, "come from SkillS runs")
+    _fails(main, ["--skill", "reach_pink", "--out", str(tmp_path / "x.npz")], capsys, "valid: hover_")
+    _fails(main, ["--skill", "reach_green", "--physics", "bullet", "--out", str(tmp_path / "x.npz")], capsys,
+           "unknown physics 'bullet'")
+    _fails(main, ["--skill", "reach_green", "--out", str(tmp_path / "x.pt")], capsys, "must be a PATH.npz")
+    _fails(main, ["--skill", "reach_green", "--bc_noise", "-1", "--out", str(tmp_path / "x.npz")], capsys,
+           "non-negative number")
+    assert existing.read_bytes() == before and not (tmp_path / "x.npz").exists()
+
+
+def test_train_skill_end_to_end_tiny(tmp_path, capsys):
+    """Cloning + CRR fine-tuning on tiny shapes: the file loads and records what made it."""
+    from training.train_skill import main
+
+    out = tmp_path / "lib" / "open_fingers.npz"
+    argv = ["--skill", "open_fingers", "--out", str(out), "--seed", "3", "--bc_envs", "4", "--bc_steps", "8",
+            "--bc_updates", "3", "--crr_steps", "100", "--crr_envs", "4", "--eval_episodes", "2"]
+    main(argv)
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    meta = _meta(str(out))
+    assert last == f"success={meta['success']:.4f} return={meta['eval_return']:.3f}"
+    assert meta["command"] == "python -m training.train_skill " + " ".join(argv)
+    assert meta["seed"] == 3 and meta["physics"] == "kinematic" and meta["task"] == "open_fingers"
+    assert meta["trained_with"] in ("bc", "bc+crr") and meta["training"]["crr"]["env_steps"] == 100 and meta["training"]["crr"]["num_envs"] == 4
+    assert meta["training"]["bc"]["updates"] == 3 and meta["success_episodes"] == 2
+    Skill.load(str(out), obs_size=L.OBS_SIZE, action_size=L.ACTION_SIZE)
