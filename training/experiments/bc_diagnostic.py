@@ -27,6 +27,7 @@ def main():
     from parallel_skills.evaluation import make_evaluator
     from parallel_skills.networks import gaussian_log_prob
     from tasks.manipulation import scripted
+    from training.experiments.scripted_data import collect_noisy_expert
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--task", default="lift")
@@ -46,23 +47,9 @@ def main():
     env = tasks.make(args.task)
     prm = dataclasses.replace(scripted.ControllerParams(), avoid_neighbours=args.avoid_neighbours)
     expert = scripted.get(args.expert, prm)
-    ctl = jax.vmap(expert)
     B, T = args.envs, args.steps
-
-    @jax.jit
-    def collect(key):
-        k0, k1 = jax.random.split(key)
-        s = jax.vmap(env.reset)(jax.random.split(k0, B))
-
-        def body(s, k):
-            a0 = ctl(s.obs, None)
-            a = jnp.clip(a0 + args.noise * jax.random.normal(k, a0.shape), -1, 1)
-            return jax.vmap(env.step)(s, a), dict(obs=s.obs, action=a0 if args.labels == "clean" else a)
-
-        _, d = jax.lax.scan(body, s, jax.random.split(k1, T))
-        return jax.tree.map(lambda x: x.reshape((B * T,) + x.shape[2:]), d)
-
-    data = collect(jax.random.PRNGKey(args.seed))
+    raw = jax.jit(lambda key: collect_noisy_expert(env, expert, B, T, args.noise, key))(jax.random.PRNGKey(args.seed))
+    data = dict(obs=raw["obs"], action=raw["clean_action" if args.labels == "clean" else "action"])
     stats = norm.update(norm.init(env.observation_size), data["obs"])
     policy, _ = learners.new_skill_networks(env.action_size, NewSkillConfig(min_std=args.min_std))
     params = policy.init(jax.random.PRNGKey(args.seed + 1), jnp.zeros((1, env.observation_size)))

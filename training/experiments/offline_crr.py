@@ -13,7 +13,6 @@ import argparse
 import time
 
 import jax
-import jax.numpy as jnp
 
 
 def main():
@@ -22,6 +21,7 @@ def main():
     from parallel_skills import normalization as norm
     from parallel_skills.evaluation import make_evaluator
     from tasks.manipulation import scripted
+    from training.experiments.scripted_data import collect_noisy_expert
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--task", default="lift")
@@ -37,22 +37,9 @@ def main():
 
     env = tasks.make(args.task)
     B, T = args.envs, args.steps
-    ctl = jax.vmap(scripted.get(args.expert))
-
-    @jax.jit
-    def collect(key):
-        k0, k1 = jax.random.split(key)
-        s = jax.vmap(env.reset)(jax.random.split(k0, B))
-
-        def body(s, k):
-            a = jnp.clip(ctl(s.obs, None) + args.noise * jax.random.normal(k, (B, env.action_size)), -1, 1)
-            n = jax.vmap(env.step)(s, a)
-            return n, dict(obs=s.obs, action=a, reward=n.reward, discount=jnp.ones(B), next_obs=n.obs)
-
-        _, d = jax.lax.scan(body, s, jax.random.split(k1, T))
-        return jax.tree.map(lambda x: x.reshape((B * T,) + x.shape[2:]), d)
-
+    collect = jax.jit(lambda key: collect_noisy_expert(env, scripted.get(args.expert), B, T, args.noise, key))
     data = collect(jax.random.PRNGKey(args.seed))
+    del data["clean_action"]
     stats = norm.update(norm.init(env.observation_size), data["obs"])
     cfg = NewSkillConfig(crr_mode=args.crr_mode)
     state = learners.new_skill_learner_init(jax.random.PRNGKey(args.seed + 1), env.observation_size,
