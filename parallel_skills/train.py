@@ -61,10 +61,13 @@ class TrainConfig:
                 raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)}")
 
 
-# Learners dominate on a CPU (STACK.md: ≈1 update per env step at the paper's ratios), so the
-# CPU defaults lower samples-per-insert and batch sizes.
-CPU_DEFAULTS = dict(num_envs=32, replay_size=300_000, scheduler_spi=8.0, scheduler_batch=128,
-                    new_skill_spi=16.0, new_skill_batch=256)
+# The CPU recipe (docs/learning.md: kinematic lift from the useful skills reaches 0.8 in about
+# 200k env steps with it). Learners dominate on a CPU (STACK.md: ≈1 update per env step at the
+# paper's ratios), so the scheduler takes fewer samples per insert and learns its critic alone for
+# its first updates (Eq. 3's long-horizon values first); the new skill keeps a high replay ratio
+# (at 16 it did not learn lift in 300k steps) with CRR's indicator weights.
+CPU_DEFAULTS = dict(num_envs=32, replay_size=300_000, scheduler_spi=8.0, scheduler_policy_warmup_updates=1500,
+                    new_skill_spi=64.0, new_skill_crr_mode="indicator")
 
 
 def resolve(config: TrainConfig, backend: Optional[str] = None) -> tuple[TrainConfig, list[str]]:
@@ -80,14 +83,19 @@ def resolve(config: TrainConfig, backend: Optional[str] = None) -> tuple[TrainCo
         if cfg.replay_size is None:
             cfg = dataclasses.replace(cfg, replay_size=CPU_DEFAULTS["replay_size"])
             notes.append(f"replay_size={cfg.replay_size}")
+        # Only a learner config left at the paper's defaults takes the CPU recipe.
         if cfg.scheduler == SchedulerConfig():
             cfg = dataclasses.replace(cfg, scheduler=dataclasses.replace(
-                cfg.scheduler, samples_per_insert=CPU_DEFAULTS["scheduler_spi"]))
-            notes.append(f"scheduler samples_per_insert={CPU_DEFAULTS['scheduler_spi']} (paper 100)")
+                cfg.scheduler, samples_per_insert=CPU_DEFAULTS["scheduler_spi"],
+                policy_warmup_updates=CPU_DEFAULTS["scheduler_policy_warmup_updates"]))
+            notes.append(f"scheduler samples_per_insert={CPU_DEFAULTS['scheduler_spi']} (paper 100), "
+                         f"policy_warmup_updates={CPU_DEFAULTS['scheduler_policy_warmup_updates']} (paper 0)")
         if cfg.new_skill == NewSkillConfig():
             cfg = dataclasses.replace(cfg, new_skill=dataclasses.replace(
-                cfg.new_skill, samples_per_insert=CPU_DEFAULTS["new_skill_spi"]))
-            notes.append(f"new-skill samples_per_insert={CPU_DEFAULTS['new_skill_spi']} (paper 50)")
+                cfg.new_skill, samples_per_insert=CPU_DEFAULTS["new_skill_spi"],
+                crr_mode=CPU_DEFAULTS["new_skill_crr_mode"]))
+            notes.append(f"new-skill samples_per_insert={CPU_DEFAULTS['new_skill_spi']} (paper 50), "
+                         f"crr_mode={CPU_DEFAULTS['new_skill_crr_mode']} (paper exp)")
     else:
         if cfg.num_envs is None:
             cfg = dataclasses.replace(cfg, num_envs=4096)
@@ -562,9 +570,9 @@ class _Accumulator:
     def summary(self, last_metrics):
         out = {k: _to_py(v) for k, v in last_metrics.items()}
         out.update({k: _to_py(v) for k, v in self.sums.items()})
-        n = max(float(self.sums.get("episodes", 0.0)), 1.0)
-        for k, v in self.weighted.items():
-            out[k] = v / n
+        n = float(self.sums.get("episodes", 0.0))
+        for k, v in self.weighted.items():  # NaN when no training episode ended in the interval
+            out[k] = v / n if n > 0 else float("nan")
         return out
 
 

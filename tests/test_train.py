@@ -151,3 +151,38 @@ def test_nonfinite_transitions_are_masked():
     w = np.asarray(exp["weight"][0, :n])
     # Each env blows up at its 3rd step after every reset: global steps 3, 6, 9, 12, 15.
     assert (w == 0).sum() == 4 * 5
+
+
+def test_cpu_recipe_applies_only_to_learner_configs_left_at_paper_defaults():
+    from parallel_skills.train import CPU_DEFAULTS, resolve
+
+    cfg, notes = resolve(TrainConfig(), backend="cpu")
+    assert cfg.num_envs == CPU_DEFAULTS["num_envs"] and cfg.replay_size == CPU_DEFAULTS["replay_size"]
+    assert cfg.scheduler.samples_per_insert == CPU_DEFAULTS["scheduler_spi"]
+    assert cfg.scheduler.policy_warmup_updates == CPU_DEFAULTS["scheduler_policy_warmup_updates"]
+    assert cfg.new_skill.samples_per_insert == CPU_DEFAULTS["new_skill_spi"]
+    assert cfg.new_skill.crr_mode == CPU_DEFAULTS["new_skill_crr_mode"]
+    assert len(notes) == 4  # every automatic choice is logged
+    mine = TrainConfig(num_envs=8, new_skill=NewSkillConfig(samples_per_insert=16.0))
+    cfg, notes = resolve(mine, backend="cpu")
+    assert cfg.num_envs == 8 and cfg.new_skill == mine.new_skill  # the user's choices stand
+    assert cfg.scheduler.samples_per_insert == CPU_DEFAULTS["scheduler_spi"]
+    gpu, notes = resolve(TrainConfig(), backend="gpu")
+    assert gpu.num_envs == 4096 and gpu.scheduler == SchedulerConfig() and gpu.new_skill == NewSkillConfig()
+
+
+def test_training_episode_stats_are_nan_when_no_episode_ended():
+    """An evaluation interval shorter than an episode has no training episode to average: NaN (shown as
+    n/a), not a success of 0."""
+    from parallel_skills.train import _Accumulator
+    from training.logging_utils import Progress
+
+    m = {k: np.zeros(3) if k.endswith("histogram") or k.startswith("skill_") else np.float32(0.0)
+         for k in _Accumulator.SUMMED + ("episode_return", "episode_success")}
+    acc = _Accumulator()
+    acc.add(m)
+    out = acc.summary({"eval/new_skill_success": 0.5, "eval/new_skill_return": 1.0, "new_skill_selection_rate": 0.2})
+    assert np.isnan(out["episode_success"]) and np.isnan(out["episode_return"])
+    assert "train_success=n/a" in Progress.line(100, 1.0, out)
+    acc.add(dict(m, episodes=np.float32(2.0), episode_success=np.float32(0.5)))
+    assert acc.summary({})["episode_success"] == 0.5

@@ -34,7 +34,9 @@ import time
 from training.cli import Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int
 from training.logging_utils import Progress, TensorBoardLogger, format_row
 
-DEFAULT_TIMESTEPS = {"cpu": 400_000, "accelerator": 20_000_000}
+# CPU: the README quickstart must end within 15 minutes on 2 cores (kinematic lift: ≈ 0.4–0.6
+# success after 160k steps, 0.8–0.9 after 250k; docs/learning.md).
+DEFAULT_TIMESTEPS = {"cpu": 160_000, "accelerator": 20_000_000}
 # Flags whose defaults are applied after parsing (None = "not given": --resume rejects given flags
 # that conflict with the run's config.json).
 DEFAULTS = dict(task="lift", physics="kinematic", seed=0, skills="useful", skill_source="scripted", method="skills",
@@ -58,13 +60,16 @@ def build_parser():
     p.add_argument("--task", default=None, help="task name (see tasks.names()); default lift")
     p.add_argument("--physics", default=None, help=f"one of {', '.join(tasks.PHYSICS)}; default kinematic")
     p.add_argument("--num_envs", type=positive_int, default=None, help="default: 32 on CPU, 4096 on GPU")
-    p.add_argument("--num_timesteps", type=positive_int, default=None, help="env steps (default: 400k on CPU)")
+    p.add_argument("--num_timesteps", type=positive_int, default=None, help="env steps (default: 160k on CPU, 20M on GPU)")
     p.add_argument("--episode_length", type=positive_int, default=None)
     p.add_argument("--seed", type=nonnegative_int, default=None, help="default 0")
     p.add_argument("--skills", default=None, help=f"skill set: {', '.join(SET_NAMES)}; default useful")
     p.add_argument("--skill_source", default=None, choices=list(SOURCES),
                    help="where the set's skills come from: scripted controllers, or the shipped neural library "
                         "checkpoints/<physics>/<name>.npz (many_useful needs it); default scripted")
+    p.add_argument("--skill_dir", default=None,
+                   help="directory of your own skills (NAME.npz + NAME.json, as Skill.save writes them): a skill of "
+                        "the set found there is loaded from it instead of --skill_source")
     p.add_argument("--method", default=None, choices=list(METHODS), help="default skills")
     p.add_argument("--eval_every", type=positive_int, default=None,
                    help="iterations between evaluations (default: 20 evaluations per run)")
@@ -257,10 +262,15 @@ def prepare_new(args, argv):
     resolved = dataclasses.replace(resolved, eval_every=eval_every)
     overrides = {} if args.episode_length is None else {"episode_length": args.episode_length}
     env = tasks.make(a["task"], physics=a["physics"], **overrides)  # validates the overrides
-    skill_sets.load_skills(names, a["physics"], a["skill_source"], env.observation_size, env.action_size)  # exist, fit
+    skill_dir = os.path.abspath(args.skill_dir) if args.skill_dir else None
+    try:
+        skill_sets.load_skills(names, a["physics"], a["skill_source"], env.observation_size, env.action_size,
+                               skill_dir=skill_dir)  # exist, fit
+    except ValueError as e:
+        raise UsageError(str(e)) from None
 
     run = {"command": _command(argv), "task": a["task"], "physics": a["physics"], "skill_set": a["skills"],
-           "skill_source": a["skill_source"], "skills": names, "seed": a["seed"], "num_timesteps": num_timesteps,
+           "skill_source": a["skill_source"], "skill_dir": skill_dir, "skills": names, "seed": a["seed"], "num_timesteps": num_timesteps,
            "episode_length": int(getattr(env, "episode_length", 0)) or args.episode_length,
            "checkpoint_every": args.checkpoint_every, "replay_checkpoint": not args.no_replay_checkpoint,
            "video": bool(args.video), "train_config": dataclasses.asdict(resolved), "auto": notes}
@@ -310,12 +320,14 @@ def prepare_resume(args):
         raise UsageError(f"cannot resume: {cfg_path} is unreadable or invalid: {str(e).splitlines()[0]}") from None
     run.setdefault("skill_set", None)
     run.setdefault("skill_source", "scripted")
+    run.setdefault("skill_dir", None)
     run.setdefault("episode_length", None)
     run.setdefault("checkpoint_every", None)
     run.setdefault("replay_checkpoint", True)
 
     given = {"task": (args.task, run["task"]), "physics": (args.physics, run["physics"]),
              "skills": (args.skills, run["skill_set"]), "skill_source": (args.skill_source, run["skill_source"]),
+             "skill_dir": (os.path.abspath(args.skill_dir) if args.skill_dir else None, run["skill_dir"]),
              "seed": (args.seed, run["seed"]),
              "method": (args.method, resolved.method), "num_timesteps": (args.num_timesteps, run["num_timesteps"]),
              "num_envs": (args.num_envs, resolved.num_envs), "episode_length": (args.episode_length, run["episode_length"]),
@@ -340,7 +352,8 @@ def prepare_resume(args):
                          "which this version does not know")
     from tasks.manipulation import scripted
 
-    unknown = [n for n in run["skills"] if n not in scripted.names()]
+    unknown = [n for n in run["skills"] if n not in scripted.names()
+               and not (run["skill_dir"] and os.path.isfile(os.path.join(run["skill_dir"], f"{n}.npz")))]
     if unknown and run["skill_source"] == "scripted":  # (library skills are checked when loaded)
         raise UsageError(f"cannot resume: {cfg_path} names skills {unknown} this version does not have")
     if os.path.exists(os.path.join(out, "export.json")):
@@ -409,7 +422,8 @@ def _train(out, run, resolved, env, resume: bool, video: bool = False):
 
     names = list(run["skills"])
     skills = main_guard(lambda: skill_sets.load_skills(names, run["physics"], run.get("skill_source", "scripted"),
-                                                       env.observation_size, env.action_size))
+                                                       env.observation_size, env.action_size,
+                                                       skill_dir=run.get("skill_dir")))
     seed, num_timesteps = int(run["seed"]), int(run["num_timesteps"])
     ckpt = Checkpointer(out, save_replay=run["replay_checkpoint"])
     csv_path = os.path.join(out, "metrics.csv")

@@ -181,6 +181,9 @@ def behaviour_clone(data, action_size: int, config, key, num_updates: int):
 
 # ----------------------------------------------------------------------------- CRR fine-tuning
 
+FINETUNE_SAMPLES_PER_INSERT = 16.0
+
+
 def finetune(env, policy_params, stats, seed: int, num_timesteps: int, num_envs=None):
     """``parallel_skills.train`` with ``method="scratch"`` started from ``policy_params`` (online and
     target policy) and the cloning data's observation statistics. Returns (policy params, stats,
@@ -188,10 +191,13 @@ def finetune(env, policy_params, stats, seed: int, num_timesteps: int, num_envs=
     import jax
     import jax.numpy as jnp
 
-    from parallel_skills import TrainConfig, make_trainer, train
+    from parallel_skills import NewSkillConfig, TrainConfig, make_trainer, train
     from parallel_skills.train import resolve
 
-    cfg = TrainConfig(method="scratch", num_envs=num_envs, eval_episodes=8, eval_every=10**9)  # evaluates once, at the end
+    # Pinned, not the trainer's CPU recipe (which may change with what SkillS needs): the shipped
+    # skills were fine-tuned with these settings.
+    cfg = TrainConfig(method="scratch", num_envs=num_envs, eval_episodes=8, eval_every=10**9,  # evaluates once, at the end
+                      new_skill=NewSkillConfig(samples_per_insert=FINETUNE_SAMPLES_PER_INSERT))
     resolved, _ = resolve(cfg)
     trainer = make_trainer(env, [], resolved)
     state = jax.jit(trainer.init)(jax.random.PRNGKey(seed))
@@ -293,7 +299,7 @@ def _train_skill(args, argv, base):
         report["crr"] = {"env_steps": int(m["env_steps"]), "selection_success": ft_sel[0],
                          "selection_return": ft_sel[1], "kept": bool(keep), "wall_time_s": round(t_ft, 1),
                          "num_envs": int(n_ft),
-                         "method": "parallel_skills.train(method='scratch'), CPU defaults"}
+                         "method": "parallel_skills.train(method='scratch'), CPU defaults, new-skill samples_per_insert 16"}
         if keep:
             chosen, trained_with = ft_skill, "bc+crr"
     report["selection_seed"] = selection_seed

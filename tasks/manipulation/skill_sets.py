@@ -31,6 +31,10 @@ TABLE = {
     ),
 }
 TABLE["lift_green"] = TABLE["lift"]
+# Lift yellow / blue (the chain's stages before stack, training.chain): lift green's table with the
+# reach skill of the lifted cube (the reach of green becomes a distractor).
+TABLE["lift_yellow"] = (["reach_yellow", "lift_arm_closed"], ["reach_green", "reach_blue", "open_fingers", "lift_arm_open"])
+TABLE["lift_blue"] = (["reach_blue", "lift_arm_closed"], ["reach_green", "reach_yellow", "open_fingers", "lift_arm_open"])
 TABLE["stack_green_on_yellow"] = TABLE["stack"]
 
 SET_NAMES = ("useful", "useful+distractors", "distractors", "many_useful")
@@ -70,17 +74,34 @@ def library_path(physics: str, name: str, root: str | None = None) -> str:
 
 
 def load_skills(names, physics: str, source: str = "scripted", obs_size: int | None = None,
-                action_size: int | None = None, root: str | None = None) -> list:
+                action_size: int | None = None, root: str | None = None, skill_dir: str | None = None) -> list:
     """The skills ``names`` as ``parallel_skills.Skill`` objects, from ``source``:
 
     * ``"scripted"``: ``Skill.from_fn(name, scripted.get(name))`` (any physics);
     * ``"library"``: ``Skill.load(checkpoints/<physics>/<name>.npz)``, sizes checked against
       ``obs_size`` / ``action_size``, named ``name``.
 
+    ``skill_dir``: a directory of the user's own skills; a name with ``skill_dir/<name>.npz`` (and its
+    ``.json`` sidecar) is loaded from there, size-checked the same way, whatever ``source`` says
+    (e.g. the new skills of earlier SkillS runs: ``training.chain``).
+
     ValueError (one line) naming the missing file or the mismatch."""
+    import dataclasses
+
     from parallel_skills import Skill
 
     names = list(names)
+    if skill_dir is not None:
+        if not os.path.isdir(skill_dir):
+            raise ValueError(f"skill directory {skill_dir} does not exist (or is not a directory)")
+        own = {n for n in names if os.path.isfile(os.path.join(skill_dir, f"{n}.npz"))}
+        rest = load_skills([n for n in names if n not in own], physics, source, obs_size, action_size, root)
+        by_name = {s.name: s for s in rest}
+        for n in sorted(own):
+            path = os.path.join(skill_dir, f"{n}.npz")
+            skill = Skill.load(path, obs_size=obs_size, action_size=action_size)
+            by_name[n] = dataclasses.replace(skill, name=n, metadata=dict(skill.metadata, source="skill_dir", path=path))
+        return [by_name[n] for n in names]
     if source == "scripted":
         from tasks.manipulation import scripted
 
@@ -95,8 +116,6 @@ def load_skills(names, physics: str, source: str = "scripted", obs_size: int | N
         return [Skill.from_fn(n, scripted.get(n), source="scripted") for n in names]
     if source != "library":
         raise ValueError(f"unknown skill source {source!r}; valid: {', '.join(SOURCES)}")
-    import dataclasses
-
     skills = []
     for n in names:
         path = library_path(physics, n, root)

@@ -1,0 +1,106 @@
+"""training.chain (issue 4): lift green -> stack end to end on tiny shapes, the new skill of one stage
+joining the next stage's skills via ``--skill_dir``; rerunning continues (skips finished stages);
+bad input. Also ``load_skills(skill_dir=...)`` on its own."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+TINY = {"num_envs": 4, "unroll_length": 5, "replay_size": 200, "eval_episodes": 1,
+        "scheduler": {"skill_lengths": [2, 3], "hidden": [16], "critic_head_hidden": [8], "batch_size": 8,
+                      "min_replay_size": 10, "samples_per_insert": 2.0},
+        "new_skill": {"hidden": [16], "batch_size": 8, "min_replay_size": 10, "samples_per_insert": 2.0}}
+
+
+def _chain(argv, cwd):
+    env = dict(os.environ, PYTHONPATH=ROOT, JAX_COMPILATION_CACHE_DIR=jax.config.jax_compilation_cache_dir)
+    return subprocess.run([sys.executable, "-m", "training.chain", *argv], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=1200)
+
+
+def test_chain_lift_then_stack_feeds_the_new_skill_forward_and_continues(tmp_path):
+    with open(tmp_path / "tiny.json", "w") as f:
+        json.dump(TINY, f)
+    argv = ["--out", "chain", "--stages", "lift_green,stack", "--lift_timesteps", "40", "--stack_timesteps", "40",
+            "--config", "tiny.json", "--eval_episodes", "2"]
+    r = _chain(argv, tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    record = json.load(open(tmp_path / "chain" / "chain.json"))
+    assert list(record["stages"]) == ["lift_green", "stack"]
+    # The lift stage's new skill is published with its sidecar and loads for the lift task's sizes.
+    from parallel_skills import Skill
+    import tasks
+
+    env = tasks.make("stack")
+    side = json.load(open(tmp_path / "chain" / "skills" / "lift_green.json"))
+    assert side["chain_stage"] == "lift_green" and side["eval_episodes"] == 2
+    assert side["command"].startswith("python -m training.chain") and "--skill_dir chain/skills" in side["stage_command"]
+    assert 0.0 <= side["success"] <= 1.0
+    skill = Skill.load(str(tmp_path / "chain" / "skills" / "lift_green.npz"), obs_size=env.observation_size,
+                       action_size=env.action_size)
+    assert skill.name == "lift_green"
+    # ... and the stack stage trained with it, taken from the chain's skill directory.
+    stack_run = json.load(open(tmp_path / "chain" / "stack" / "config.json"))
+    assert "lift_green" in stack_run["skills"]
+    assert os.path.samefile(stack_run["skill_dir"], tmp_path / "chain" / "skills")
+    assert json.load(open(tmp_path / "chain" / "skills" / "stack.json"))["trained_with"] == stack_run["skills"]
+    # Rerunning the same command continues the chain: nothing left to train.
+    before = {p: os.path.getmtime(tmp_path / "chain" / "skills" / p) for p in ("lift_green.npz", "stack.npz")}
+    r2 = _chain(argv, tmp_path)
+    assert r2.returncode == 0, r2.stderr[-2000:]
+    assert r2.stdout.count("skipped") == 2
+    assert before == {p: os.path.getmtime(tmp_path / "chain" / "skills" / p) for p in before}
+    # Another command on the same directory is refused, one line, exit 2.
+    r3 = _chain(argv[:-2] + ["--eval_episodes", "3"], tmp_path)
+    assert r3.returncode == 2 and r3.stderr.startswith("error:") and len(r3.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--out", "c", "--stages", "lift_green,fly"], "unknown task 'fly'"),
+    (["--out", "c", "--stages", "reach_green"], "has no skill table"),
+    (["--out", "c", "--stages", "lift_green,lift_green"], "repeats a task"),
+    (["--out", "c", "--physics", "bullet"], "unknown physics"),
+    (["--out", "c", "--config", "missing.json"], "does not exist"),
+])
+def test_chain_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, argv, message):
+    from training.chain import main
+
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+    finally:
+        os.chdir(cwd)
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and message in err and len(err.strip().splitlines()) == 1
+    assert os.listdir(tmp_path) == []
+
+
+def test_load_skills_prefers_the_skill_dir(tmp_path):
+    from parallel_skills import Skill
+    from parallel_skills.networks import GaussianPolicy
+    from tasks.manipulation import skill_sets
+
+    obs, act = 60, 5
+    net = GaussianPolicy(action_size=act, hidden=(8,))
+    params = {"policy": net.init(jax.random.PRNGKey(0), np.zeros((1, obs), np.float32)),
+              "obs_mean": np.zeros(obs, np.float32), "obs_std": np.ones(obs, np.float32)}
+    Skill.gaussian_mlp("mine", params, act, (8,)).save(str(tmp_path / "reach_green.npz"), obs_size=obs)
+    skills = skill_sets.load_skills(["reach_green", "lift_arm_closed"], "kinematic", "scripted", obs, act,
+                                    skill_dir=str(tmp_path))
+    assert [s.name for s in skills] == ["reach_green", "lift_arm_closed"]
+    assert skills[0].metadata["source"] == "skill_dir" and skills[1].metadata["source"] == "scripted"
+    with pytest.raises(ValueError, match="obs"):  # sizes are checked against the task
+        skill_sets.load_skills(["reach_green"], "kinematic", "scripted", obs + 1, act, skill_dir=str(tmp_path))
+    with pytest.raises(ValueError, match="does not exist"):
+        skill_sets.load_skills(["reach_green"], "kinematic", "scripted", obs, act, skill_dir=str(tmp_path / "nope"))

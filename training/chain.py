@@ -1,0 +1,192 @@
+"""Chained curriculum (paper App. C): SkillS on lift green, yellow, blue, then stack, each stage's
+new skill joining the skills of the stages after it.
+
+    python -m training.chain --physics kinematic --out runs/chain
+
+Stage ``T`` is ``python -m training.run --task T --skills useful --skill_dir DIR/skills --out DIR/T``
+(a subprocess; its own run directory, log, checkpoints and export). When it ends, its new skill is
+evaluated alone over ``--eval_episodes`` episodes (``training.evaluate``) and written to
+``DIR/skills/T.npz`` + ``.json`` (sidecar: sizes, the stage and chain commands, seed, that success
+and the command that measures it); later stages find it there (stack's useful set includes
+``lift_green``). ``DIR/chain.json`` records every stage's command, wall time and success.
+
+Rerunning the same command continues a chain: finished stages are skipped, an interrupted stage is
+resumed from its latest checkpoint (``training.run --resume``). Bad input: one ``error:`` line,
+exit 2, nothing written.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+from training.cli import Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int
+
+STAGES = ("lift_green", "lift_yellow", "lift_blue", "stack")
+# Env steps per stage on a CPU: kinematic lift reaches 0.8-0.9 after 250k-300k (docs/learning.md).
+DEFAULT_TIMESTEPS = {"lift": 300_000, "stack": 1_000_000}
+
+
+def build_parser():
+    import tasks
+    from tasks.manipulation.skill_sets import SOURCES
+
+    p = Parser(prog="python -m training.chain", description=__doc__.splitlines()[0])
+    p.add_argument("--physics", default="kinematic", help=f"one of {', '.join(tasks.PHYSICS)}; default kinematic")
+    p.add_argument("--out", required=True, help="chain directory (rerun the same command to continue it)")
+    p.add_argument("--seed", type=nonnegative_int, default=0)
+    p.add_argument("--stages", default=",".join(STAGES),
+                   help=f"comma-separated tasks, in order (default {','.join(STAGES)})")
+    p.add_argument("--lift_timesteps", type=positive_int, default=DEFAULT_TIMESTEPS["lift"],
+                   help="env steps of each lift stage (default 300k)")
+    p.add_argument("--stack_timesteps", type=positive_int, default=DEFAULT_TIMESTEPS["stack"],
+                   help="env steps of the stack stage and any other task (default 1M)")
+    p.add_argument("--skill_source", default="scripted", choices=list(SOURCES),
+                   help="where the basic skills come from (the chain's own new skills always come from DIR/skills)")
+    p.add_argument("--num_envs", type=positive_int, default=None)
+    p.add_argument("--config", default=None, help="JSON file of TrainConfig fields, passed to every stage")
+    p.add_argument("--eval_episodes", type=positive_int, default=64,
+                   help="episodes of the final evaluation of each stage's new skill (default 64)")
+    return p
+
+
+def stage_timesteps(task: str, args) -> int:
+    return args.lift_timesteps if task.startswith("lift") else args.stack_timesteps
+
+
+def stage_argv(task: str, args, skill_dir: str, run_dir: str, resume: bool) -> list[str]:
+    """The ``training.run`` arguments of one stage."""
+    if resume:
+        return ["--resume", "--out", run_dir]
+    argv = ["--task", task, "--physics", args.physics, "--seed", str(args.seed), "--skills", "useful",
+            "--skill_source", args.skill_source, "--skill_dir", skill_dir,
+            "--num_timesteps", str(stage_timesteps(task, args)), "--out", run_dir]
+    if args.num_envs:
+        argv += ["--num_envs", str(args.num_envs)]
+    if args.config:
+        argv += ["--config", args.config]
+    return argv
+
+
+def validate(args) -> list[str]:
+    import tasks
+    from tasks.manipulation import skill_sets
+
+    stages = [s for s in args.stages.split(",") if s]
+    if not stages:
+        raise UsageError("--stages is empty; give comma-separated task names, e.g. lift_green,stack")
+    for s in stages:
+        if s not in tasks.names():
+            raise UsageError(f"unknown task {s!r} in --stages; valid tasks: {', '.join(tasks.names())}")
+        if s not in skill_sets.TABLE:
+            raise UsageError(f"task {s!r} has no skill table (it cannot be a SkillS stage); valid: "
+                             f"{', '.join(sorted(skill_sets.TABLE))}")
+    if len(set(stages)) != len(stages):
+        raise UsageError(f"--stages repeats a task: {args.stages}")
+    if args.physics not in tasks.PHYSICS:
+        raise UsageError(f"unknown physics {args.physics!r}; valid: {', '.join(tasks.PHYSICS)}")
+    if args.config and not os.path.isfile(args.config):
+        raise UsageError(f"config file {args.config} does not exist")
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise UsageError(f"{args.out} exists and is not a directory")
+    check_writable(args.out, "the chain directory")
+    return stages
+
+
+def load_record(record_path: str, chain_command: str) -> dict:
+    """The chain's record: new, or the one a previous call of the same command left."""
+    if not os.path.isfile(record_path):
+        return {"command": chain_command, "stages": {}}
+    try:
+        with open(record_path) as f:
+            record = json.load(f)
+        assert isinstance(record, dict) and isinstance(record.get("stages"), dict)
+    except (OSError, ValueError, AssertionError):
+        raise UsageError(f"{record_path} is unreadable; choose a new --out") from None
+    if record.get("command") != chain_command:
+        raise UsageError(f"{record_path} was made by another command ({record.get('command')}); continue it with "
+                         "that command, or choose a new --out")
+    return record
+
+
+def publish_skill(task: str, args, run_dir: str, skill_dir: str, chain_command: str) -> dict:
+    """Evaluate the stage's new skill alone and write it to ``skill_dir/<task>.npz`` + sidecar."""
+    from parallel_skills import Skill
+    from training.evaluate import evaluate_policy
+
+    src = os.path.join(run_dir, "new_skill.npz")
+    result = evaluate_policy(task, args.physics, src, episodes=args.eval_episodes, seed=0)
+    success = float(result["success"].mean())
+    ret = float(result["return"].mean())
+    skill = Skill.load(src)
+    meta = {k: v for k, v in skill.metadata.items() if k not in ("name", "arch")}
+    dst = os.path.join(skill_dir, f"{task}.npz")
+    eval_cmd = (f"python -m training.evaluate --task {task} --physics {args.physics} --policy {dst} "
+                f"--episodes {args.eval_episodes}")
+    meta.update(stage_command=meta.pop("command", None), command=chain_command, chain_stage=task,
+                trained_with_method="SkillS (training.run)", success=success, eval_return=ret,
+                eval_episodes=args.eval_episodes, eval_command=eval_cmd)
+    import dataclasses
+
+    Skill.save(dataclasses.replace(skill, name=task, metadata={}), dst, **meta)
+    return {"success": success, "return": ret, "skill": dst}
+
+
+def main(argv=None):
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
+    stages = main_guard(lambda: validate(args))
+    chain_command = " ".join(["python -m training.chain"] + argv)
+    out = args.out
+    skill_dir = os.path.join(out, "skills")
+    record_path = os.path.join(out, "chain.json")
+    record = main_guard(lambda: load_record(record_path, chain_command))
+    os.makedirs(skill_dir, exist_ok=True)
+
+    def save_record():
+        tmp = record_path + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(record, f, indent=2)
+        os.replace(tmp, record_path)
+
+    save_record()
+    t_chain = time.perf_counter()
+    for task in stages:
+        run_dir = os.path.join(out, task)
+        published = os.path.join(skill_dir, f"{task}.json")
+        if os.path.isfile(published) and task in record["stages"]:
+            print(f"[chain] {task}: done (success {record['stages'][task]['success']:.3f}), skipped", flush=True)
+            continue
+        finished = os.path.isfile(os.path.join(run_dir, "export.json"))
+        resume = os.path.isdir(run_dir) and not finished
+        sargv = stage_argv(task, args, skill_dir, run_dir, resume)
+        if not finished:
+            print(f"[chain] {task}: python -m training.run {' '.join(sargv)}", flush=True)
+            t0 = time.perf_counter()
+            code = subprocess.call([sys.executable, "-m", "training.run"] + sargv)
+            if code != 0:
+                print(f"error: stage {task} failed (training.run exit code {code}); rerun the same command to "
+                      "continue the chain", file=sys.stderr)
+                sys.exit(code)
+            wall = time.perf_counter() - t0
+        else:
+            wall = record["stages"].get(task, {}).get("wall_time_s", 0.0)
+        result = publish_skill(task, args, run_dir, skill_dir, chain_command)
+        record["stages"][task] = dict(result, run_dir=run_dir, wall_time_s=round(wall, 1), resumed=resume,
+                                      num_timesteps=stage_timesteps(task, args),
+                                      run_command="python -m training.run " + " ".join(
+                                          stage_argv(task, args, skill_dir, run_dir, False)))
+        save_record()
+        print(f"[chain] {task}: new skill success={result['success']:.4f} over {args.eval_episodes} episodes "
+              f"-> {result['skill']} ({wall:.0f} s)", flush=True)
+    total = sum(s["wall_time_s"] for s in record["stages"].values())
+    summary = ", ".join("%s %.3f" % (t, record["stages"][t]["success"]) for t in stages)
+    print(f"[chain] done: {summary}; "
+          f"training wall time {total:.0f} s (this call {time.perf_counter() - t_chain:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
