@@ -171,3 +171,25 @@ def test_release_onto_cube_stacks_and_off_edge_falls_beside():
     out = K._settle(0, cube_pos, jnp.zeros(3))
     assert float(out[0, 2]) == pytest.approx(L.CUBE_HALF)
     assert not bool(K.cubes_interpenetrate(s.replace(cube_pos=out)))
+
+
+@pytest.mark.parametrize("offset", [0.0, 0.004, 0.008])
+@pytest.mark.parametrize("command", [-1.0, -0.97, -0.6])
+def test_closing_grasps_an_off_centre_cube(offset, command):
+    """Closing from fully open on a cube within the grasp tolerance but off the pinch centre (pinch
+    frame y) grasps it, whatever the closing speed: the pads stop at first contact, so the grasp must
+    happen on the step a pad reaches the cube, not only when the command reaches the cube's width."""
+    base = K.sample_initial_state(jax.random.PRNGKey(0))
+    cube_pos = jnp.array([[0.0, offset, L.CUBE_HALF], [0.09, 0.09, L.CUBE_HALF], [-0.09, 0.09, L.CUBE_HALF]])
+    s = base.replace(
+        pinch=jnp.array([0.0, 0.0, L.CUBE_HALF]), yaw=jnp.asarray(0.0), aperture=jnp.asarray(L.APERTURE_OPEN),
+        cube_pos=cube_pos, cube_yaw=jnp.zeros(3), held=jnp.asarray(-1),
+    )
+    step = jax.jit(K.dynamics)
+    action = jnp.array([0.0, 0.0, 0.0, 0.0, command])
+    for _ in range(int(np.ceil(L.APERTURE_OPEN / (abs(command) * L.MAX_FINGER_SPEED * L.CONTROL_DT))) + 1):
+        s = step(s, action)
+    assert int(s.held) == 0
+    assert float(s.aperture) == pytest.approx(L.CUBE_SIZE)
+    np.testing.assert_allclose(s.cube_pos[0, :2], [0.0, 0.0], atol=1e-6)  # centred between the pads
+    assert not bool(K.cubes_interpenetrate(s))

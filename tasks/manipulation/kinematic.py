@@ -6,10 +6,10 @@ reward functions of every other backend (``layout``, ``rewards``, ``task_defs``)
 Model (one agent step, dt = 0.05 s):
   1. Fingers move by ``action[4]·MAX_FINGER_SPEED·dt``. Closing onto a cube that sits between the
      pads (centred within ``GRASP_TOL_XY`` / ``GRASP_TOL_Z`` in the pinch frame, faces aligned
-     within ``GRASP_TOL_YAW``) grasps it: the pads stop at the cube's width and the cube is
-     centred and aligned between them (if that does not push it into another cube). Any other
-     finger motion that would make a pad penetrate a cube is blocked. Opening past the cube's
-     width releases a held cube, which settles (see 3).
+     within ``GRASP_TOL_YAW``) grasps it on the step a pad would reach it: the pads stop at the
+     cube's width and the cube is centred and aligned between them (if that does not push it into
+     another cube). Any other finger motion that would make a pad penetrate a cube is blocked.
+     Opening past the cube's width releases a held cube, which settles (see 3).
   2. The pinch moves by the commanded Cartesian velocity and the wrist turns by the yaw rate,
      carrying a held cube. A move that would make a finger pad, the palm or the held cube
      penetrate a cube (or the held cube the floor) is replaced by its horizontal-only part, else
@@ -213,7 +213,12 @@ def dynamics(s: KinematicState, action: jax.Array) -> KinematicState:
     cs = _cs(s.yaw)
     snap_pos = s.pinch + G.rotate_xy(snap_rel, cs[0], cs[1])
     snap_ok = ~_cube_hits_cubes(g, snap_pos, _cs(snap_yaw), s.cube_pos, cube_cs)
-    grasp_now = (~holding) & closing & (ap_cmd <= L.CUBE_SIZE) & graspable[g] & snap_ok
+    # The closing step grasps once a pad would reach the cube: the first pad to touch pushes it to
+    # the centre while the other closes on it. (Requiring the commanded aperture itself to reach the
+    # cube's width would trap an off-centre cube: the pads stop at first contact, above that width.)
+    pad_reaches = (ap_cmd <= L.CUBE_SIZE) | _gripper_hits_cubes(
+        s.pinch, s.yaw, ap_cmd, s.cube_pos, cube_cs, jnp.arange(L.NUM_CUBES) != g)
+    grasp_now = (~holding) & closing & pad_reaches & graspable[g] & snap_ok
 
     cube_pos = jnp.where(grasp_now, s.cube_pos.at[g].set(snap_pos), s.cube_pos)
     cube_yaw = jnp.where(grasp_now, s.cube_yaw.at[g].set(snap_yaw), s.cube_yaw)
