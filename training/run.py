@@ -34,8 +34,8 @@ import time
 from training.cli import Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int
 from training.logging_utils import Progress, TensorBoardLogger, format_row
 
-# CPU: the README quickstart must end within 15 minutes on 2 cores (kinematic lift: ≈ 0.4–0.6
-# success after 160k steps, 0.8–0.9 after 250k; docs/learning.md).
+# CPU: the README quickstart must end within 15 minutes on 2 cores (kinematic lift, seed 0: ≈ 0.4
+# success after 160k steps, 0.8-0.97 from 260k; other seeds are slower; docs/learning.md, README).
 DEFAULT_TIMESTEPS = {"cpu": 160_000, "accelerator": 20_000_000}
 # Flags whose defaults are applied after parsing (None = "not given": --resume rejects given flags
 # that conflict with the run's config.json).
