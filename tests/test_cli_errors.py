@@ -227,6 +227,7 @@ def test_resume_of_complete_run_and_of_mismatched_checkpoint(ws, fresh_run, caps
     (["--num_envs", "-4"], "argument --num_envs: expected a positive integer, got '-4'"),
     (["--task", "juggle"], "unknown task 'juggle'; valid tasks:"),
     (["--resume", "--out", "/nonexistent/run"], "cannot resume: run directory /nonexistent/run does not exist"),
+    (["--skill_dir", "/nonexistent/skills"], "skill directory /nonexistent/skills does not exist"),
 ])
 def test_real_stderr_of_a_subprocess(ws, argv, needle):
     env = dict(os.environ, PYTHONPATH=ROOT)

@@ -17,6 +17,7 @@ exit 2, nothing written.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -129,8 +130,6 @@ def publish_skill(task: str, args, run_dir: str, skill_dir: str, chain_command: 
     meta.update(stage_command=meta.pop("command", None), command=chain_command, chain_stage=task,
                 trained_with_method="SkillS (training.run)", success=success, eval_return=ret,
                 eval_episodes=args.eval_episodes, eval_command=eval_cmd)
-    import dataclasses
-
     Skill.save(dataclasses.replace(skill, name=task, metadata={}), dst, **meta)
     return {"success": success, "return": ret, "skill": dst}
 

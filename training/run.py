@@ -263,11 +263,8 @@ def prepare_new(args, argv):
     overrides = {} if args.episode_length is None else {"episode_length": args.episode_length}
     env = tasks.make(a["task"], physics=a["physics"], **overrides)  # validates the overrides
     skill_dir = os.path.abspath(args.skill_dir) if args.skill_dir else None
-    try:
-        skill_sets.load_skills(names, a["physics"], a["skill_source"], env.observation_size, env.action_size,
-                               skill_dir=skill_dir)  # exist, fit
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    skill_sets.load_skills(names, a["physics"], a["skill_source"], env.observation_size, env.action_size,
+                           skill_dir=skill_dir)  # exist, fit (a ValueError is one error line: main_guard)
 
     run = {"command": _command(argv), "task": a["task"], "physics": a["physics"], "skill_set": a["skills"],
            "skill_source": a["skill_source"], "skill_dir": skill_dir, "skills": names, "seed": a["seed"], "num_timesteps": num_timesteps,
