@@ -35,6 +35,14 @@ VARIANTS = {
     "nopalm": {"palm_collision": False},
     "pairs6": {"max_geom_pairs": 6},
     "pairs6_nopalm": {"max_geom_pairs": 6, "palm_collision": False},
+    "pyramidal": {"cone": 0},
+    "cg": {"solver": 1},  # conjugate gradient: no per-iteration Cholesky of the Hessian
+    "cheap": {"cone": 0, "iterations": 2, "ls_iterations": 4, "palm_collision": False},
+    # Bound, not a candidate: no contacts at all (nothing can be grasped). What the step costs without
+    # any collision detection or contact constraint: no collision tuning can be faster than this.
+    # (pyramidal: MJX 3.x fails on elliptic cones with no contact rows.)
+    "nocontact": {"contacts": False, "cone": 0},
+    "nocontact_cg": {"contacts": False, "cone": 0, "solver": 1},
 }
 
 

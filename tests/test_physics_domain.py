@@ -52,6 +52,23 @@ def scripted_lift_np(obs, cube="green"):
 
 
 # --- scene and NumPy twin -----------------------------------------------------------------------
+def test_bench_physics_options():
+    """The collision / solver options of bench/physics_throughput.py's variants reach the model."""
+    model, _ = P.load_model()
+    assert model.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC and model.opt.solver == mujoco.mjtSolver.mjSOL_NEWTON
+    assert not model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT
+    model, _ = P.load_model(cone=0, solver=1, contacts=False)
+    assert model.opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL and model.opt.solver == mujoco.mjtSolver.mjSOL_CG
+    assert model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT
+    data = mujoco.MjData(model)
+    mujoco.mj_setState(model, data, P.init_states([0])[0], P.STATE_SPEC)
+    for _ in range(50):
+        mujoco.mj_step(model, data)
+    assert data.ncon == 0 and data.qpos[P.NQ - 5] < 0  # no contacts: a cube falls through the floor
+    with pytest.raises(ValueError, match="unknown physics option 'cones'"):
+        P.load_model(cones=0)
+
+
 def test_scene_layout_and_sensors_match_observation():
     model, substeps = P.load_model()
     assert substeps * model.opt.timestep == pytest.approx(L.CONTROL_DT)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import os
 
 import jax
@@ -230,9 +231,11 @@ def _metrics(step, value):
 def test_tensorboard_events_read_back_and_resume_purge(tmp_path):
     tb = TensorBoardLogger(str(tmp_path), ["reach_green"], [10, 20])
     for step, v in [(10, 0.1), (20, 0.2), (30, 0.3)]:
-        tb.log(step, _metrics(step, v))
+        tb.log(step, dict(_metrics(step, v), episode_success=math.nan if step == 20 else v))
     tb.close()
     s = read_scalars(str(tmp_path))
+    # No episode ended in the interval of step 20: a gap, not a NaN point (metrics.csv keeps the nan).
+    assert [p for p, _ in s["episode_success"]] == [10, 30]
     assert s["eval/new_skill_success"] == [(10, pytest.approx(0.1)), (20, pytest.approx(0.2)), (30, pytest.approx(0.3))]
     assert s["skill_steps/reach_green"][0] == (10, 4.0) and s["skill_runs/new_skill"][0] == (10, 0.0)
     assert s["skill_avg_consecutive/reach_green"][0] == (10, 2.0)

@@ -208,8 +208,11 @@ class TensorBoardLogger:
         self.skill_names, self.lengths = skill_names, lengths
 
     def log(self, step: int, metrics: dict):
+        """Non-finite scalars (episode statistics of an interval in which no episode ended) are left
+        out: a gap in the TensorBoard curve; metrics.csv keeps them as nan."""
         for tag, value in scalar_metrics(metrics, self.skill_names, self.lengths).items():
-            self.writer.add_scalar(tag, value, int(step))
+            if math.isfinite(value):
+                self.writer.add_scalar(tag, value, int(step))
         self.writer.flush()
 
     def close(self):

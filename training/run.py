@@ -66,7 +66,7 @@ def build_parser():
     p.add_argument("--skills", default=None, help=f"skill set: {', '.join(SET_NAMES)}; default useful")
     p.add_argument("--skill_source", default=None, choices=list(SOURCES),
                    help="where the set's skills come from: scripted controllers, or the shipped neural library "
-                        "checkpoints/<physics>/<name>.npz (many_useful needs it); default scripted")
+                        "checkpoints/kinematic/ or (mujoco, mjx, warp) checkpoints/mjx/ (many_useful needs it); default scripted")
     p.add_argument("--skill_dir", default=None,
                    help="directory of your own skills (NAME.npz + NAME.json, as Skill.save writes them): a skill of "
                         "the set found there is loaded from it instead of --skill_source")

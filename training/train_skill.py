@@ -74,7 +74,37 @@ def build_parser():
     p.add_argument("--eval_episodes", type=positive_int, default=64, help="episodes of the recorded success (64)")
     p.add_argument("--eval_seed", type=nonnegative_int, default=0,
                    help="--seed of the training.evaluate run the recorded success equals (default 0)")
+    p.add_argument("--also_eval", nargs="+", default=[], metavar="PHYSICS",
+                   help="also measure the saved skill with training.evaluate on these backends of the same scene "
+                        "(e.g. --physics mujoco --also_eval mjx warp); recorded under the sidecar's 'evaluations'")
     return p
+
+
+def also_eval_choices(physics: str) -> tuple[str, ...]:
+    """Backends that share ``physics``' scene (the physics MJCF: mujoco, mjx, warp), other than it."""
+    from tasks.manipulation.skill_sets import library_dir
+
+    import tasks
+
+    return tuple(p for p in tasks.PHYSICS if p != physics and library_dir(p) == library_dir(physics))
+
+
+def evaluate_in_subprocess(task: str, physics: str, policy: str, episodes: int, seed: int) -> tuple[float, float]:
+    """``python -m training.evaluate`` in its own process (MJX pins its process to one core: the
+    trainer's process keeps both); returns the (success, return) of its last line."""
+    import subprocess
+
+    cmd = [sys.executable, "-m", "training.evaluate", "--task", task, "--physics", physics, "--policy", policy,
+           "--episodes", str(episodes), "--seed", str(seed)]
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")])))
+    done = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    lines = done.stdout.strip().splitlines()
+    if done.returncode != 0 or not lines or not lines[-1].startswith("success="):
+        tail = (done.stderr.strip().splitlines() or ["no output"])[-1]
+        raise RuntimeError(f"training.evaluate on {physics} failed (exit {done.returncode}): {tail}")
+    fields = dict(kv.split("=") for kv in lines[-1].split())
+    return float(fields["success"]), float(fields["return"])
 
 
 def trainable_skills() -> list[str]:
@@ -232,6 +262,11 @@ def main(argv=None):
             raise UsageError(f"unknown skill {args.skill!r}{hint}; valid: {', '.join(trainable_skills())}")
         if args.physics not in tasks.PHYSICS:
             raise UsageError(f"unknown physics {args.physics!r}; valid: {', '.join(tasks.PHYSICS)}")
+        allowed = also_eval_choices(args.physics)
+        for p in args.also_eval:
+            if p not in allowed:
+                raise UsageError(f"--also_eval {p!r}: not another backend of the {args.physics} scene; valid: "
+                                 f"{', '.join(allowed) or 'none'}")
         return _check_out(args.out)
 
     base = main_guard(validate)
@@ -313,6 +348,18 @@ def _train_skill(args, argv, base):
         tmp_path = os.path.join(tmp, "skill.npz")
         chosen.save(tmp_path, **meta)
         res = evaluate_policy(args.skill, args.physics, tmp_path, episodes=args.eval_episodes, seed=args.eval_seed)
+        evaluations = {}
+        for p in args.also_eval:
+            t_p = time.perf_counter()
+            s_p, r_p = evaluate_in_subprocess(args.skill, p, tmp_path, args.eval_episodes, args.eval_seed)
+            evaluations[p] = dict(success=s_p, eval_return=r_p, success_episodes=args.eval_episodes,
+                                  eval_seed=args.eval_seed, wall_time_s=round(time.perf_counter() - t_p, 1),
+                                  eval_command=(f"python -m training.evaluate --task {args.skill} --physics {p} "
+                                                f"--policy {args.out} --episodes {args.eval_episodes} "
+                                                f"--seed {args.eval_seed}"))
+            print(f"{p}: success={s_p:.4f} return={r_p:.3f} ({evaluations[p]['wall_time_s']:.0f} s)", flush=True)
+        if evaluations:
+            meta["evaluations"] = evaluations
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     success, ret = float(np.mean(res["success"])), float(np.mean(res["return"]))

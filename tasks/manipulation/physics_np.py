@@ -73,7 +73,7 @@ RESET_CUBE_Z = L.CUBE_HALF + 1e-4  # a hair above the floor: no initial penetrat
 NUM_UNIFORMS = 3 + RESET_TRIES * L.NUM_CUBES * 2 + L.NUM_CUBES
 
 # Scene options a caller may override (``load_model(**overrides)``).
-MODEL_OPTIONS = ("timestep", "iterations", "ls_iterations", "noslip_iterations", "impratio")
+MODEL_OPTIONS = ("timestep", "iterations", "ls_iterations", "noslip_iterations", "impratio", "cone", "solver")
 
 
 def load_model(
@@ -85,9 +85,12 @@ def load_model(
     (their product must equal layout.CONTROL_DT). Other keyword arguments set ``model.opt``
     fields (``iterations``, ``ls_iterations``, ``noslip_iterations``, ``impratio``); collision
     tuning: ``palm_collision`` (default True), ``max_geom_pairs`` / ``max_contact_points`` (MJX-jax
-    limits per collision-function group, ignored by classic MuJoCo).
+    limits per collision-function group, ignored by classic MuJoCo), ``cone`` (0 pyramidal, 1 the
+    scene's elliptic), ``solver`` (1 CG, 2 the scene's Newton); ``contacts=False`` disables all contacts (a cost bound for benchmarks only:
+    nothing can be grasped).
     """
     xml = open(SCENE_PATH).read()
+    contacts = options.pop("contacts", True)
     if not options.pop("palm_collision", True):
         xml = xml.replace('<geom name="palm" class="gripper"', '<geom name="palm" class="gripper" contype="0" conaffinity="0"')
     mjx_limits = {k: options.pop(k) for k in ("max_geom_pairs", "max_contact_points") if k in options}
@@ -107,6 +110,8 @@ def load_model(
         if key not in MODEL_OPTIONS:
             raise ValueError(f"unknown physics option {key!r}; valid: timestep, substeps, {', '.join(MODEL_OPTIONS)}")
         setattr(model.opt, key, type(getattr(model.opt, key))(value))
+    if not contacts:
+        model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
     assert (model.nq, model.nv, model.nu, model.na) == (NQ, NV, NU, NU), "scene layout changed"
     assert mujoco.mj_stateSize(model, STATE_SPEC) == STATE_SIZE
     return model, int(substeps)

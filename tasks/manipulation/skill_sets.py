@@ -1,7 +1,7 @@
 """Skill sets per task from the paper's App. C skill table ("useful" and "distractor" skills).
 
 Names refer to skills, backed either by the scripted controllers of ``scripted``
-(``source="scripted"``) or by the shipped neural library ``checkpoints/<physics>/<name>.npz``
+(``source="scripted"``) or by the shipped neural library ``checkpoints/<library_dir(physics)>/<name>.npz``
 (``source="library"``, Gaussian-MLP skills trained by ``training.train_skill``): see ``load_skills``.
 ``many_useful`` is the paper's "many useful skills" ablation: 3 seeds of each useful skill, named
 ``NAME`` (seed 0), ``NAME.s1`` and ``NAME.s2``, which only the library has.
@@ -40,7 +40,7 @@ TABLE["stack_green_on_yellow"] = TABLE["stack"]
 SET_NAMES = ("useful", "useful+distractors", "distractors", "many_useful")
 SOURCES = ("scripted", "library")
 MANY_SEEDS = 3  # skills per useful skill in "many_useful" (paper App. C: 3 seeds)
-# The shipped skill library: checkpoints/<physics>/<name>.npz + .json (repository root).
+# The shipped skill library: checkpoints/<library_dir(physics)>/<name>.npz + .json (repository root).
 LIBRARY_ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
                             "checkpoints")
 _SEED_SUFFIX = re.compile(r"^(?P<base>.+)\.s(?P<seed>[0-9]+)$")
@@ -68,9 +68,21 @@ def split_seed(name: str) -> tuple[str, int]:
     return (m["base"], int(m["seed"])) if m else (name, 0)
 
 
+# One library per scene: the kinematic domain's, and the physics scene's (scene.xml), which the three
+# physics backends share (same MJCF, same observation / action code: docs/physics.md), so a skill
+# trained on the CPU fast path (physics="mujoco") serves MJX and Warp too. Named "mjx" (issue 4).
+LIBRARY_DIRS = {"kinematic": "kinematic", "mujoco": "mjx", "mjx": "mjx", "warp": "mjx"}
+
+
+def library_dir(physics: str) -> str:
+    """The library directory name under checkpoints/ of ``physics`` (see ``LIBRARY_DIRS``)."""
+    return LIBRARY_DIRS.get(physics, physics)
+
+
 def library_path(physics: str, name: str, root: str | None = None) -> str:
-    """``checkpoints/<physics>/<name>.npz`` of the shipped library (``root`` replaces checkpoints/)."""
-    return os.path.join(root or LIBRARY_ROOT, physics, f"{name}.npz")
+    """``checkpoints/<library_dir(physics)>/<name>.npz`` of the shipped library (``root`` replaces
+    checkpoints/)."""
+    return os.path.join(root or LIBRARY_ROOT, library_dir(physics), f"{name}.npz")
 
 
 def load_skills(names, physics: str, source: str = "scripted", obs_size: int | None = None,
@@ -78,7 +90,8 @@ def load_skills(names, physics: str, source: str = "scripted", obs_size: int | N
     """The skills ``names`` as ``parallel_skills.Skill`` objects, from ``source``:
 
     * ``"scripted"``: ``Skill.from_fn(name, scripted.get(name))`` (any physics);
-    * ``"library"``: ``Skill.load(checkpoints/<physics>/<name>.npz)``, sizes checked against
+    * ``"library"``: ``Skill.load(library_path(physics, name))`` (``checkpoints/kinematic/`` or, for
+      mujoco / mjx / warp, ``checkpoints/mjx/``), sizes checked against
       ``obs_size`` / ``action_size``, named ``name``.
 
     ``skill_dir``: a directory of the user's own skills; a name with ``skill_dir/<name>.npz`` (and its
@@ -122,8 +135,9 @@ def load_skills(names, physics: str, source: str = "scripted", obs_size: int | N
         base, seed = split_seed(n)
         if not (os.path.isfile(path) and os.path.isfile(path[:-4] + ".json")):
             missing = path if not os.path.isfile(path) else path[:-4] + ".json"
+            train_physics = "mujoco" if library_dir(physics) == "mjx" else physics  # the CPU fast path
             raise ValueError(f"skill {n!r} is not in the {physics} skill library: {missing} does not exist "
-                             f"(train it: python -m training.train_skill --skill {base} --physics {physics} "
+                             f"(train it: python -m training.train_skill --skill {base} --physics {train_physics} "
                              f"--seed {seed} --out {path}; higher skills come from SkillS runs)")
         skill = Skill.load(path, obs_size=obs_size, action_size=action_size)
         skills.append(dataclasses.replace(skill, name=n, metadata=dict(skill.metadata, source="library", path=path)))
