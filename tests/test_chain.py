@@ -52,6 +52,11 @@ def test_chain_lift_then_stack_feeds_the_new_skill_forward_and_continues(tmp_pat
     assert "lift_green" in stack_run["skills"]
     assert os.path.samefile(stack_run["skill_dir"], tmp_path / "chain" / "skills")
     assert json.load(open(tmp_path / "chain" / "skills" / "stack.json"))["trained_with"] == stack_run["skills"]
+    # Its export records where each skill came from, so that ':scheduler' evaluations run the same ones.
+    sources = json.load(open(tmp_path / "chain" / "stack" / "export.json"))["metadata"]["skill_sources"]
+    by_name = {e["name"]: e for e in sources}
+    assert by_name["lift_green"]["source"] == "skill_dir" and by_name["reach_green"]["source"] == "scripted"
+    assert os.path.samefile(by_name["lift_green"]["path"], tmp_path / "chain" / "skills" / "lift_green.npz")
     # Rerunning the same command continues the chain: nothing left to train.
     before = {p: os.path.getmtime(tmp_path / "chain" / "skills" / p) for p in ("lift_green.npz", "stack.npz")}
     r2 = _chain(argv, tmp_path)

@@ -188,6 +188,57 @@ def test_evaluate_scheduler_runs_scripted_skills(tmp_path, capsys):
     assert float(out_sched[-1].split("return=")[1]) > 0.0
 
 
+def test_evaluate_scheduler_runs_library_and_skill_dir_skills(tmp_path, capsys):
+    """An export of a run with neural skills (``--skill_source library`` / ``--skill_dir``) runs those
+    files under ``:scheduler`` (NumPy, on the JAX-free twin here), not the scripted controllers of the
+    same names; a skill file changed since the run is one error line."""
+    import shutil
+
+    from tasks.manipulation import skill_sets
+    from training.run import skill_sources
+
+    own = tmp_path / "skills"
+    own.mkdir()
+    for ext in ("npz", "json"):  # a user's lift_arm_closed: here the shipped reach_green's network
+        shutil.copy(os.path.join(ROOT, "checkpoints", "kinematic", f"reach_green.{ext}"), own / f"lift_arm_closed.{ext}")
+    skills = skill_sets.load_skills(SKILLS, "kinematic", "library", L.OBS_SIZE, L.ACTION_SIZE, skill_dir=str(own))
+    sources = skill_sources(skills, "kinematic")
+    assert [e["source"] for e in sources] == ["library", "skill_dir"] and sources[0]["library"] == "kinematic"
+    assert sources[1]["path"] == str(own / "lift_arm_closed.npz") and "path" not in sources[0]  # no machine path
+
+    params = _params(L.OBS_SIZE, L.ACTION_SIZE, len(SKILLS))
+    runs = {}
+    for pick in (0, 1):  # a scheduler that always picks skill `pick`
+        sched = jax.tree.map(lambda x: x, params["scheduler"])
+        head_i = sched["params"]["head_i"]
+        sched["params"]["head_i"] = {"kernel": jnp.zeros_like(head_i["kernel"]),
+                                     "bias": jnp.asarray([50.0 if j == pick else 0.0 for j in range(3)])}
+        out = tmp_path / f"run{pick}"
+        runs[pick] = write_export(str(out), dict(params, scheduler=sched), env=_env(), config=CONFIG,
+                                  task="reach_green", physics="kinematic",
+                                  metadata={"skills": SKILLS, "skill_sources": sources, "seed": 0, "env_steps": 0})
+    common = ["--task", "reach_green", "--physics", "mujoco", "--episodes", "3", "--episode_length", "30"]
+    results = []
+    for pick in (0, 1):
+        evaluate.main(common + ["--policy", runs[pick] + ":scheduler"])
+        results.append(capsys.readouterr().out.strip().splitlines())
+    evaluate.main(common + ["--policy", os.path.join(ROOT, "checkpoints", "kinematic", "reach_green.npz")])
+    alone = capsys.readouterr().out.strip().splitlines()[-1]
+    scripted = []
+    for name in SKILLS:
+        evaluate.main(common + ["--policy", f"scripted:{name}"])
+        scripted.append(capsys.readouterr().out.strip().splitlines()[-1])
+    # Both the library skill and the skill_dir file are reach_green's network: the same episodes,
+    # not those of the scripted controllers of the same names.
+    assert results[0][-1] == results[1][-1] == alone and alone not in scripted
+    assert "reach_green=1.000" in results[0][-2] and "lift_arm_closed=1.000" in results[1][-2]
+
+    with open(own / "lift_arm_closed.npz", "ab") as f:
+        f.write(b"\0")
+    err = _bad(common + ["--policy", runs[1] + ":scheduler"], capsys)
+    assert "lift_arm_closed.npz changed since the run" in err
+
+
 @pytest.fixture(scope="session")
 def mismatched(tmp_path_factory):
     """An export for observations of size 7 (not the manipulation tasks' 60)."""

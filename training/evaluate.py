@@ -10,13 +10,14 @@
 * ``PATH.npz``: a Gaussian-MLP skill with its JSON sidecar (``Skill.save``, e.g. ``new_skill.npz``);
 * ``DIR/export.npz`` (or ``DIR/export.npz:new_skill``): an export's new skill alone
   (``training.export``);
-* ``DIR/export.npz:scheduler``: the export's scheduler sequencing the skills recorded in it (scripted
-  controllers, and the new skill) with its counters: it picks (i, k) greedily, runs skill i for K[k]
-  steps, then decides again.
+* ``DIR/export.npz:scheduler``: the export's scheduler sequencing the skills recorded in it (each
+  from where the run took it: scripted controller, shipped library or ``--skill_dir`` file, checked
+  against the file's recorded SHA-256; and the new skill) with its counters: it picks (i, k)
+  greedily, runs skill i for K[k] steps, then decides again.
 
 With ``--physics mujoco`` the ``.npz`` policies run on the classic-MuJoCo twin
 (``tasks.manipulation.physics_np``) with a NumPy forward pass and import no JAX, except
-``:scheduler``, which imports JAX for the scripted skills (they are JAX functions). The last line
+``:scheduler`` with scripted skills, which imports JAX for them (they are JAX functions). The last line
 printed is ``success=<fraction> return=<mean>``.
 """
 
@@ -139,12 +140,60 @@ def scripted_skills(names, seed: int):
     return actions
 
 
+def neural_skill(entry: dict, export_path: str):
+    """A frozen neural skill of an export's ``skill_sources`` entry (library or skill_dir) as a NumPy
+    policy ``obs [B, O] -> mean actions [B, A]``, checked against the SHA-256 recorded at training."""
+    from parallel_skills.numpy_policy import NumpyGaussianPolicy
+    from tasks.manipulation.skill_sets import LIBRARY_ROOT
+    from training.export import file_sha256
+
+    if entry["source"] == "library":
+        path = os.path.join(LIBRARY_ROOT, entry["library"], f"{entry['name']}.npz")
+    else:
+        path = entry["path"]
+    if not os.path.isfile(path):
+        raise UsageError(f"{export_path}: its skill {entry['name']!r} ({entry['source']}) was {path}, which does not "
+                         f"exist (':scheduler' runs the skills the run was trained with)")
+    if file_sha256(path) != entry.get("sha256"):
+        raise UsageError(f"{export_path}: its skill file {path} changed since the run (SHA-256 differs); "
+                         f"':scheduler' needs the skills the run was trained with")
+    return NumpyGaussianPolicy.load(path)
+
+
+def frozen_skills(export, seed: int):
+    """The export's N frozen skills as ``fn(obs [B, O]) -> actions [N, B, A]`` (NumPy), each from
+    where the run took it (``metadata["skill_sources"]``; exports without it: scripted controllers).
+    Only scripted skills need JAX. None when there are no frozen skills."""
+    names = export.frozen_skill_names
+    if not names:
+        return None
+    sources = export.meta.get("metadata", {}).get("skill_sources") or [{"name": n, "source": "scripted"}
+                                                                       for n in names]
+    if [e["name"] for e in sources] != names:
+        raise UsageError(f"{export.path}: metadata skill_sources names {[e['name'] for e in sources]}, the scheduler "
+                         f"{names}")
+    scripted_idx = [j for j, e in enumerate(sources) if e["source"] == "scripted"]
+    neural = {j: neural_skill(e, export.path) for j, e in enumerate(sources) if e["source"] != "scripted"}
+    scripted = scripted_skills([names[j] for j in scripted_idx], seed) if scripted_idx else None
+
+    def actions(obs):
+        out = [None] * len(names)
+        if scripted is not None:
+            for j, a in zip(scripted_idx, scripted(obs)):
+                out[j] = a
+        for j, policy in neural.items():
+            out[j] = policy(obs)
+        return np.stack(out).astype(np.float32)
+
+    return actions
+
+
 def scheduler_policy(export, seed: int):
     """The export's scheduler running its skills (greedy choices, counters): a batched NumPy
     ``act(obs) -> actions`` with a ``usage`` attribute (steps per skill)."""
     from parallel_skills.numpy_policy import ScheduledPolicy
 
-    frozen = scripted_skills(export.frozen_skill_names, seed) if export.frozen_skill_names else None
+    frozen = frozen_skills(export, seed)
 
     def every_skill(obs):
         new = export.new_skill(obs)[None]

@@ -21,7 +21,9 @@ network applies as clip((obs - mean) / std, ±10) before its torso):
 ``export.json``: ``format`` / ``version``, ``task``, ``physics``, ``obs_size``, ``action_size``,
 ``seed``, ``env_steps``, ``method``, ``new_skill`` {name, hidden, action_size, min_std},
 ``scheduler`` {hidden, num_skills (N+1), skill_lengths (K), skill_names (the N frozen skills in
-scheduler index order, then the new skill), new_skill_index (N)}, ``metadata`` (the rest).
+scheduler index order, then the new skill), new_skill_index (N)}, ``metadata`` (the rest;
+``training.run`` records ``skill_sources``: where each frozen skill came from, scripted controller,
+shipped library or ``--skill_dir`` file with its SHA-256, so that ``:scheduler`` runs the same skills).
 """
 
 from __future__ import annotations
@@ -36,6 +38,17 @@ from parallel_skills.numpy_policy import EXPORT_FORMAT, EXPORT_VERSION, NumpyExp
 
 NPZ, JSON = "export.npz", "export.json"
 REQUIRED_METADATA = ("skills", "seed", "env_steps")
+
+
+def file_sha256(path: str) -> str:
+    """Hex SHA-256 of a file's bytes (records which skill file an export's scheduler ran)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 class ExportExistsError(FileExistsError, ValueError):

@@ -410,6 +410,26 @@ def main(argv=None):
     _train(out, run, resolved, env, resume=args.resume, video=args.video or bool(run.get("video")))
 
 
+def skill_sources(skills, physics: str) -> list[dict]:
+    """Where each frozen skill came from, for the export (``training.evaluate ...:scheduler`` runs the
+    same skills): ``{"name", "source": "scripted"}``; ``{"name", "source": "library", "library":
+    checkpoints/ subdirectory, "sha256"}`` (no machine path: resolved in the repository at
+    evaluation); ``{"name", "source": "skill_dir", "path": as given, "sha256"}``."""
+    from tasks.manipulation.skill_sets import library_dir
+    from training.export import file_sha256
+
+    out = []
+    for s in skills:
+        src = s.metadata.get("source", "scripted")
+        entry = {"name": s.name, "source": src}
+        if src == "library":
+            entry.update(library=library_dir(physics), sha256=file_sha256(s.metadata["path"]))
+        elif src == "skill_dir":
+            entry.update(path=s.metadata["path"], sha256=file_sha256(s.metadata["path"]))
+        out.append(entry)
+    return out
+
+
 def _train(out, run, resolved, env, resume: bool, video: bool = False):
     from parallel_skills import Skill, train
     from parallel_skills.normalization import std as norm_std
@@ -509,7 +529,8 @@ def _train(out, run, resolved, env, resume: bool, video: bool = False):
     _write_plots(out)
     if video:
         _write_video(out, env, make_policy, params, seed, int(run.get("episode_length") or 0) or None)
-    meta = {"skills": names, "seed": seed, "env_steps": metrics["env_steps"], "command": run["command"],
+    meta = {"skills": names, "skill_sources": skill_sources(skills, run["physics"]), "seed": seed,
+            "env_steps": metrics["env_steps"], "command": run["command"],
             "skill_set": run["skill_set"], "num_timesteps": num_timesteps,
             "success": metrics["eval/new_skill_success"], "return": metrics["eval/new_skill_return"]}
     for k in ("eval/scheduler_success", "eval/scheduler_return"):
