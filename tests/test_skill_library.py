@@ -70,6 +70,16 @@ def test_the_kinematic_library_is_complete():
     assert not [n for n in shipped if re.match(r"^(lift|stack)_(green|yellow|blue)", n)]
 
 
+def test_the_mjx_library_has_the_basic_skills():
+    """Issue 4's MJX set, shared by the mujoco / mjx / warp backends (one scene)."""
+    shipped = {os.path.basename(p)[:-4] for p in glob.glob(os.path.join(ROOT, "checkpoints", "mjx", "*.npz"))}
+    basic = {"reach_green", "reach_yellow", "reach_blue", "open_fingers", "lift_arm_open", "lift_arm_closed",
+             "hover_green_on_yellow"}
+    assert basic <= shipped, sorted(basic - shipped)
+    assert {skill_sets.library_path(p, "reach_green") for p in ("mujoco", "mjx", "warp")} == {
+        os.path.join(ROOT, "checkpoints", "mjx", "reach_green.npz")}
+
+
 @pytest.mark.parametrize("path", SHIPPED, ids=_ids(SHIPPED))
 def test_shipped_skill(path):
     meta = _meta(path)
