@@ -35,6 +35,8 @@ def test_chain_lift_then_stack_feeds_the_new_skill_forward_and_continues(tmp_pat
     assert r.returncode == 0, r.stderr[-2000:]
     record = json.load(open(tmp_path / "chain" / "chain.json"))
     assert list(record["stages"]) == ["lift_green", "stack"]
+    for stage in record["stages"].values():  # training time summed over resumes, from the run's metrics.csv
+        assert 0 < stage["training_wall_time_s"] and 0 < stage["wall_time_s"]
     # The lift stage's new skill is published with its sidecar and loads for the lift task's sizes.
     from parallel_skills import Skill
     import tasks

@@ -8,7 +8,8 @@ Stage ``T`` is ``python -m training.run --task T --skills useful --skill_dir DIR
 evaluated alone over ``--eval_episodes`` episodes (``training.evaluate``) and written to
 ``DIR/skills/T.npz`` + ``.json`` (sidecar: sizes, the stage and chain commands, seed, that success
 and the command that measures it); later stages find it there (stack's useful set includes
-``lift_green``). ``DIR/chain.json`` records every stage's command, wall time and success.
+``lift_green``). ``DIR/chain.json`` records every stage's command, wall time
+(``training_wall_time_s``: summed over resumes) and success.
 
 Rerunning the same command continues a chain: finished stages are skipped, an interrupted stage is
 resumed from its latest checkpoint (``training.run --resume``). Bad input: one ``error:`` line,
@@ -174,17 +175,30 @@ def main(argv=None):
         else:
             wall = record["stages"].get(task, {}).get("wall_time_s", 0.0)
         result = publish_skill(task, args, run_dir, skill_dir, chain_command)
-        record["stages"][task] = dict(result, run_dir=run_dir, wall_time_s=round(wall, 1), resumed=resume,
+        record["stages"][task] = dict(result, run_dir=run_dir, wall_time_s=round(wall, 1),
+                                      training_wall_time_s=training_wall_time(run_dir), resumed=resume,
                                       num_timesteps=stage_timesteps(task, args),
                                       run_command="python -m training.run " + " ".join(
                                           stage_argv(task, args, skill_dir, run_dir, False)))
         save_record()
         print(f"[chain] {task}: new skill success={result['success']:.4f} over {args.eval_episodes} episodes "
               f"-> {result['skill']} ({wall:.0f} s)", flush=True)
-    total = sum(s["wall_time_s"] for s in record["stages"].values())
+    total = sum(s.get("training_wall_time_s") or s["wall_time_s"] for s in record["stages"].values())
     summary = ", ".join("%s %.3f" % (t, record["stages"][t]["success"]) for t in stages)
     print(f"[chain] done: {summary}; "
           f"training wall time {total:.0f} s (this call {time.perf_counter() - t_chain:.0f} s)")
+
+
+def training_wall_time(run_dir: str):
+    """The stage's training wall time in seconds, summed over its resumes (``parallel_skills.train``
+    carries it in the checkpoint): the last ``wall_time`` of ``run_dir/metrics.csv``, or None. The
+    record's ``wall_time_s`` is only the last call's subprocess (a resumed stage's remainder)."""
+    from training.logging_utils import read_metrics
+
+    path = os.path.join(run_dir, "metrics.csv")
+    rows = read_metrics(path) if os.path.isfile(path) else []
+    value = rows[-1].get("wall_time") if rows else None
+    return round(float(value), 1) if isinstance(value, float) else None
 
 
 if __name__ == "__main__":
