@@ -12,7 +12,6 @@ import dataclasses
 import time
 
 import jax
-import jax.numpy as jnp
 
 import tasks
 from parallel_skills import Skill, TrainConfig

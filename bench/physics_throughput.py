@@ -66,7 +66,6 @@ def _worker(backend: str, num_envs: int, steps: int, variant: str, cache_dir: st
         return {"steps_per_s": num_envs * steps / run, "run_s": run}
 
     import jax
-    import jax.numpy as jnp
 
     jax.config.update("jax_compilation_cache_dir", cache_dir)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)

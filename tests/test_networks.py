@@ -3,7 +3,6 @@ import math
 import numpy as np
 import jax
 import jax.numpy as jnp
-import pytest
 
 from parallel_skills.networks import (GaussianPolicy, QCritic, SchedulerCritic, SchedulerPolicy,
                                       all_pairs, deterministic_action, gaussian_log_prob,

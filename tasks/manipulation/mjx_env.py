@@ -13,7 +13,6 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import mujoco
 from brax.envs.base import State
 from mujoco import mjx
 
