@@ -144,11 +144,11 @@ def neural_skill(entry: dict, export_path: str):
     """A frozen neural skill of an export's ``skill_sources`` entry (library or skill_dir) as a NumPy
     policy ``obs [B, O] -> mean actions [B, A]``, checked against the SHA-256 recorded at training."""
     from parallel_skills.numpy_policy import NumpyGaussianPolicy
-    from tasks.manipulation.skill_sets import LIBRARY_ROOT
+    from tasks.manipulation.skill_sets import library_path
     from training.export import file_sha256
 
-    if entry["source"] == "library":
-        path = os.path.join(LIBRARY_ROOT, entry["library"], f"{entry['name']}.npz")
+    if entry["source"] == "library":  # entry["library"] is a library_dir name, which maps to itself
+        path = library_path(entry["library"], entry["name"])
     else:
         path = entry["path"]
     if not os.path.isfile(path):
