@@ -26,7 +26,7 @@ def _chain(argv, cwd):
                           capture_output=True, text=True, timeout=1200)
 
 
-def test_chain_lift_then_stack_feeds_the_new_skill_forward_and_continues(tmp_path):
+def test_chain_lift_then_stack_feeds_the_new_skill_forward_and_continues(tmp_path, capsys):
     with open(tmp_path / "tiny.json", "w") as f:
         json.dump(TINY, f)
     argv = ["--out", "chain", "--stages", "lift_green,stack", "--lift_timesteps", "40", "--stack_timesteps", "40",
@@ -68,6 +68,45 @@ def test_chain_lift_then_stack_feeds_the_new_skill_forward_and_continues(tmp_pat
     # Another command on the same directory is refused, one line, exit 2.
     r3 = _chain(argv[:-2] + ["--eval_episodes", "3"], tmp_path)
     assert r3.returncode == 2 and r3.stderr.startswith("error:") and len(r3.stderr.strip().splitlines()) == 1
+    _check_ship(tmp_path, capsys)
+
+
+def _check_ship(tmp_path, capsys):
+    """training.ship: a finished stage's skill goes into a library byte for byte, with the library
+    sidecar; below the bar, unfinished stages and existing files are refused in one line."""
+    from training.export import file_sha256
+    from training.ship import main
+
+    lib = tmp_path / "lib"
+    base = ["--chain", "chain", "--root", str(lib), "--episodes", "2"]
+    r = subprocess.run([sys.executable, "-m", "training.ship", *base, "--stage", "lift_green"], cwd=tmp_path,
+                       env=dict(os.environ, PYTHONPATH=ROOT), capture_output=True, text=True, timeout=600)
+    assert r.returncode == 2 and "below the kinematic library's bar 0.8; not shipped" in r.stderr  # tiny skill
+    assert len(r.stderr.strip().splitlines()) == 1 and not lib.exists()
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        main(base + ["--stage", "lift_green", "--min_success", "0"])
+        capsys.readouterr()
+        for argv, needle in [(base + ["--stage", "lift_green", "--min_success", "0"], "already exists"),
+                             (base + ["--stage", "lift_blue"], "has not finished in chain; finished stages: "
+                                                               "lift_green, stack"),
+                             (base + ["--stage", "lift_yellow", "--min_success", "2"], "--min_success must be in")]:
+            with pytest.raises(SystemExit) as e:
+                main(argv)
+            err = capsys.readouterr().err.strip().splitlines()
+            assert e.value.code == 2 and len(err) == 1 and needle in err[0], (argv, err)
+    finally:
+        os.chdir(cwd)
+    shipped = lib / "kinematic" / "lift_green.npz"
+    assert file_sha256(str(shipped)) == file_sha256(str(tmp_path / "chain" / "skills" / "lift_green.npz"))
+    side = json.load(open(lib / "kinematic" / "lift_green.json"))
+    assert side["trained_with"] == "skills" and side["sha256"] == file_sha256(str(shipped))
+    assert side["command"] == json.load(open(tmp_path / "chain" / "chain.json"))["command"]
+    assert side["training"]["chain_stage"] == "lift_green" and side["success_episodes"] == 2
+    assert side["eval_command"] == (f"python -m training.evaluate --task lift_green --physics kinematic --policy "
+                                    f"{shipped} --episodes 2 --seed 0")
+    assert side["wall_time_s"] > 0 and side["min_std"] == 0.05
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -66,8 +66,12 @@ def test_the_kinematic_library_is_complete():
              "hover_green_on_yellow", "hover_yellow_on_blue"}
     assert basic <= shipped, sorted(basic - shipped)
     assert set(skill_sets.skill_names("lift", "many_useful")) <= shipped
-    # Higher skills (lift X, stack X on Y) come from SkillS runs (training.chain), never cloned here.
-    assert not [n for n in shipped if re.match(r"^(lift|stack)_(green|yellow|blue)", n)]
+    # Higher skills (lift X, stack X on Y) come from SkillS runs (training.chain, shipped by
+    # training.ship), never cloned by train_skill.
+    higher = [n for n in shipped if re.match(r"^(lift|stack)_(green|yellow|blue)", n)]
+    for name in higher:
+        meta = _meta(os.path.join(ROOT, "checkpoints", "kinematic", f"{name}.npz"))
+        assert meta["command"].startswith("python -m training.chain ") and meta["trained_with"] == "skills", name
 
 
 def test_the_mjx_library_has_the_basic_skills():
@@ -93,9 +97,18 @@ def test_shipped_skill(path):
     assert meta["name"] == meta["task"] and meta["task"] in tasks.names()
     assert (meta["obs_size"], meta["action_size"]) == (L.OBS_SIZE, L.ACTION_SIZE)
     assert meta["hidden"] == [128, 256, 128] and meta["min_std"] == 0.05  # NewSkillConfig defaults
-    assert meta["trained_with"] in ("bc", "bc+crr")
-    assert meta["command"].startswith("python -m training.train_skill ") and f"--seed {meta['seed']}" in meta["command"]
-    assert f"--out checkpoints/{library}/{stem}.npz" in meta["command"]
+    if meta["trained_with"] == "skills":  # a chain stage's new skill (training.chain -> training.ship)
+        assert meta["command"].startswith("python -m training.chain ")
+        assert meta["ship_command"].startswith("python -m training.ship ") and f"--stage {stem}" in meta["ship_command"]
+        assert meta["training"]["chain_stage"] == stem and meta["training"]["env_steps"] > 0
+        assert meta["training"]["stage_command"].startswith(f"python -m training.run --task {stem} ")
+        from training.export import file_sha256
+
+        assert meta["sha256"] == file_sha256(path)  # the chain's output, byte for byte
+    else:
+        assert meta["trained_with"] in ("bc", "bc+crr")
+        assert meta["command"].startswith("python -m training.train_skill ") and f"--seed {meta['seed']}" in meta["command"]
+        assert f"--out checkpoints/{library}/{stem}.npz" in meta["command"]
     assert meta["success_episodes"] == 64
     assert meta["eval_command"] == (f"python -m training.evaluate --task {meta['task']} --physics {physics} "
                                     f"--policy checkpoints/{library}/{stem}.npz --episodes 64 --seed {meta['eval_seed']}")
@@ -143,8 +156,8 @@ def test_many_useful_loads_from_the_library_and_stacks():
 
 
 def test_skill_sources_fail_in_one_line(tmp_path):
-    with pytest.raises(ValueError, match=r"kinematic skill library: .*lift_green\.npz does not exist"):
-        skill_sets.load_skills(skill_sets.skill_names("stack", "useful"), "kinematic", "library")
+    with pytest.raises(ValueError, match=r"kinematic skill library: .*stack_green_on_yellow\.npz does not exist"):
+        skill_sets.load_skills(skill_sets.skill_names("pyramid", "useful"), "kinematic", "library")
     with pytest.raises(ValueError, match="seed 1 of 'reach_green', which only the neural library has"):
         skill_sets.load_skills(["reach_green.s1"], "kinematic", "scripted")
     with pytest.raises(ValueError, match="mujoco skill library: .*checkpoints/mjx/reach_green.npz does not exist"):
@@ -160,11 +173,12 @@ def test_training_run_library_source_errors(tmp_path, capsys):
 
     out = tmp_path / "run"
     with pytest.raises(SystemExit) as e:
-        main(["--task", "stack", "--skills", "useful", "--skill_source", "library", "--out", str(out)])
+        main(["--task", "pyramid", "--skills", "useful", "--skill_source", "library", "--out", str(out)])
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("error: skill 'lift_green' is not in the kinematic skill library")
-    assert "checkpoints/kinematic/lift_green.npz" in err[0]
+    assert len(err) == 1 and err[0].startswith("error: skill 'stack_green_on_yellow' is not in the kinematic "
+                                               "skill library")
+    assert "checkpoints/kinematic/stack_green_on_yellow.npz" in err[0]
     with pytest.raises(SystemExit) as e:
         main(["--task", "lift", "--skills", "many_useful", "--out", str(out)])
     assert e.value.code == 2
