@@ -80,6 +80,12 @@ class NewSkillConfig:
     crr_beta: float = 1.0
     crr_clip: float = 20.0
     num_action_samples: int = 4  # J: samples for the CRR baseline and the TD target.
+    # > 1: clipped double Q (Fujimoto et al. 2018): independent critics, the TD target and the CRR
+    # advantage use their minimum. With one critic (CRR as in the paper) the new skill's Q drifted
+    # above any achievable return on sparse stack (114 > r_max/(1-γ) = 100 at rewarded replay
+    # states; 2.5-8x the measured return at hover states); two critics keep it below the bound, but
+    # did not make stack learn within 200k steps (docs/learning.md), so the default stays 1.
+    num_critics: int = 1
     # α = 1: pure CRR; α < 1: loss = α·CRR + (1 − α)·MPO (App. B "baselines").
     mpo_alpha: float = 1.0
     mpo_num_samples: int = 20  # sampled actions for the Gaussian MPO E-step.
@@ -101,5 +107,7 @@ class NewSkillConfig:
     def __post_init__(self):
         if self.crr_mode not in ("exp", "indicator"):
             raise ValueError(f"crr_mode must be 'exp' or 'indicator', got {self.crr_mode!r}")
+        if int(self.num_critics) < 1:
+            raise ValueError(f"num_critics must be a positive integer, got {self.num_critics}")
         if not 0.0 <= self.mpo_alpha <= 1.0:
             raise ValueError(f"mpo_alpha must be in [0, 1], got {self.mpo_alpha}")

@@ -40,7 +40,7 @@ from parallel_skills.crr import crr_advantage, crr_policy_loss, crr_weights, td_
 from parallel_skills.hcmpo import (critic_target, e_step_weights, m_step_loss, masked_mean, positive,
                                    temperature_dual_loss)
 from parallel_skills.mpo import gaussian_mpo_loss
-from parallel_skills.networks import (GaussianPolicy, QCritic, SchedulerCritic, SchedulerPolicy,
+from parallel_skills.networks import (GaussianPolicy, QCritic, QEnsemble, SchedulerCritic, SchedulerPolicy,
                                       all_pairs, categorical_entropy, gaussian_log_prob,
                                       joint_log_probs, sample_action)
 
@@ -267,10 +267,21 @@ class NewSkillLearnerState:
     steps: jnp.ndarray
 
 
-def new_skill_networks(action_size: int, config: NewSkillConfig) -> Tuple[GaussianPolicy, QCritic]:
-    """The flax modules (policy, critic) the new-skill learner uses for ``config``."""
-    return (GaussianPolicy(action_size=action_size, hidden=tuple(config.hidden), min_std=config.min_std),
-            QCritic(hidden=tuple(config.hidden)))
+def new_skill_networks(action_size: int, config: NewSkillConfig):
+    """The flax modules (policy, critic) the new-skill learner uses for ``config``: the critic is a
+    ``QEnsemble`` (q [..., E]), or a plain ``QCritic`` when ``num_critics == 1`` (the parameter
+    layout of runs from before the ensemble, so that they still resume). Apply the critic with
+    ``critic_values`` to get [..., E] either way."""
+    policy = GaussianPolicy(action_size=action_size, hidden=tuple(config.hidden), min_std=config.min_std)
+    if int(config.num_critics) == 1:
+        return policy, QCritic(hidden=tuple(config.hidden))
+    return policy, QEnsemble(hidden=tuple(config.hidden), num_critics=int(config.num_critics))
+
+
+def critic_values(critic, params: Params, obs: jnp.ndarray, action: jnp.ndarray) -> jnp.ndarray:
+    """New-skill critic values q [..., E] (E = 1 for a plain QCritic)."""
+    q = critic.apply(params, obs, action)
+    return q[..., None] if isinstance(critic, QCritic) else q
 
 
 def make_new_skill_apply(action_size: int, config: NewSkillConfig
@@ -321,7 +332,8 @@ def new_skill_learner_update(state: NewSkillLearnerState, batch: Batch, key: jax
     batch: obs [B, O], action [B, A], reward [B], discount [B] (0 terminal, 1 otherwise incl.
     truncation), next_obs [B, O], optional weight [B] (default 1).
 
-    Critic: 0.5·(Q(s, a) − y)², y = r + γ·d·mean_j Q'(s', a'_j), a'_j ~ π_target(.|s').
+    Critics (E = num_critics): Σ_e 0.5·(Q_e(s, a) − y)², y = r + γ·d·mean_j min_e Q'_e(s', a'_j),
+    a'_j ~ π_target(.|s') (clipped double Q); CRR advantages use min_e Q_e.
     Policy: α·CRR + (1 − α)·MPO (pure CRR when mpo_alpha == 1, decided statically).
     """
     obs = batch["obs"].astype(jnp.float32)
@@ -343,7 +355,8 @@ def new_skill_learner_update(state: NewSkillLearnerState, batch: Batch, key: jax
     t_mean_next, t_std_next = policy.apply(state.target_policy_params, next_obs)
     a_next = sample_action(jnp.broadcast_to(t_mean_next[:, None], (b, j, a_size)),
                            jnp.broadcast_to(t_std_next[:, None], (b, j, a_size)), k_next)
-    q_next = critic.apply(state.target_critic_params, tile_obs(next_obs, j), a_next)  # [B, J]
+    # Clipped double Q: the minimum over the target critics.
+    q_next = jnp.min(critic_values(critic, state.target_critic_params, tile_obs(next_obs, j), a_next), axis=-1)  # [B, J]
     y = td_target(reward, discount, q_next, config.discount)
 
     # ---- MPO samples from π_old = target policy at s.
@@ -362,15 +375,16 @@ def new_skill_learner_update(state: NewSkillLearnerState, batch: Batch, key: jax
             jnp.broadcast_to(std[:, None], (b, j, a_size)), k_crr))
         actions = [action[:, None], a_j] + ([a_mpo] if use_mpo else [])
         actions = jnp.concatenate(actions, axis=1)  # [B, 1 + J (+ n_mpo), A]
-        q_all = critic.apply(critic_params, tile_obs(obs, 1 + j + n_mpo), actions)
-        q = q_all[:, 0]
-        critic_loss = masked_mean(0.5 * jnp.square(q - y), weight)
+        q_ens = critic_values(critic, critic_params, tile_obs(obs, 1 + j + n_mpo), actions)  # [B, 1 + J (+ n_mpo), E]
+        q = q_ens[:, 0]  # [B, E]: every critic regresses on the same target
+        critic_loss = masked_mean(jnp.sum(0.5 * jnp.square(q - y[:, None]), axis=-1), weight)
+        q_all = jnp.min(q_ens, axis=-1)  # advantages from the clipped (minimum) estimate
         q_sg = jax.lax.stop_gradient(q_all)
         advantage = crr_advantage(q_sg[:, 0], q_sg[:, 1:1 + j])
         w_crr = crr_weights(advantage, config.crr_mode, config.crr_beta, config.crr_clip)
         log_prob = gaussian_log_prob(mean, std, action)
         loss_crr = crr_policy_loss(log_prob, w_crr, weight)
-        aux = dict(critic_loss=critic_loss, q=q, advantage=advantage, w_crr=w_crr, std=std)
+        aux = dict(critic_loss=critic_loss, q=q_all[:, 0], advantage=advantage, w_crr=w_crr, std=std)
         if use_mpo:
             loss_mpo, stats = gaussian_mpo_loss(
                 mean, std, t_mean, t_std, a_mpo, q_sg[:, 1 + j:],

@@ -8,7 +8,7 @@ Dense → elu (all layers activated: the torso output is a feature vector).
   clipped to [−1, 1]; log-probs are plain Gaussian densities of the stored (clipped) action
   (no tanh-squashed distribution: other skills' actions sit exactly at ±1).
 * ``SchedulerPolicy``: obs → (logits_i [..., N+1], logits_k [..., M]), independent heads.
-* ``QCritic``: (obs, action) → q.
+* ``QCritic``: (obs, action) → q; ``QEnsemble``: several QCritics → q [..., E].
 * ``SchedulerCritic``: Q(s, c, i, k) for P queried (c, i, k) triples per state, torso once
   per state.
 
@@ -167,6 +167,23 @@ class QCritic(nn.Module):
         x = jnp.concatenate([obs, action], axis=-1)
         h = LayerNormMLP(tuple(self.hidden), name="torso")(x)
         return nn.Dense(1, name="head")(h)[..., 0]
+
+
+class QEnsemble(nn.Module):
+    """``num_critics`` independent ``QCritic`` networks (own parameters, one vmapped apply): the
+    new skill's clipped double-Q critic (Fujimoto et al. 2018).
+
+    (obs [..., O], action [..., A]) -> q [..., num_critics].
+    """
+
+    hidden: Tuple[int, ...] = (128, 256, 128)
+    num_critics: int = 2
+
+    @nn.compact
+    def __call__(self, obs, action):
+        ensemble = nn.vmap(QCritic, variable_axes={"params": 0}, split_rngs={"params": True},
+                           in_axes=None, out_axes=-1, axis_size=self.num_critics)
+        return ensemble(hidden=tuple(self.hidden), name="critics")(obs, action)
 
 
 class SchedulerCritic(nn.Module):

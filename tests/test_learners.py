@@ -145,6 +145,45 @@ def test_new_skill_init_apply_and_updates(newskill_run):
         gaussian_log_prob(mean, std, batch["action"]).mean())
 
 
+def test_new_skill_td_target_is_the_minimum_over_critics():
+    """Clipped double Q: with target critics that differ by +50 on critic 1, the online critics
+    regress on γ·min (≈ critic 0's value), not on the mean (≈ +25) or on each its own target."""
+    cfg = NewSkillConfig(hidden=(32, 32), learning_rate=3e-3, target_critic_period=10_000, discount=0.5,
+                         num_critics=2)
+    state = new_skill_learner_init(jax.random.PRNGKey(0), O, A, cfg)
+    bias = state.target_critic_params["params"]["critics"]["head"]["bias"]  # [E, 1]
+    assert bias.shape == (2, 1)
+    target = jax.tree_util.tree_map(lambda x: x, state.target_critic_params)
+    target["params"]["critics"]["head"]["bias"] = bias.at[1].add(50.0)
+    state = state.replace(target_critic_params=target)
+    batch = dict(_new_skill_batch(jax.random.PRNGKey(1)), reward=jnp.zeros(B))
+    new_state, metrics = _scan_updates(new_skill_learner_update, cfg, 200)(state, batch, jax.random.PRNGKey(2))
+    from parallel_skills.learners import new_skill_networks
+
+    _, critic = new_skill_networks(A, cfg)
+    q = np.asarray(critic.apply(new_state.critic_params, batch["obs"], batch["action"]))  # [B, 2]
+    assert q.shape == (B, 2)
+    assert np.abs(q).max() < 2.0, q  # both near 0.5·Q'_0 (small), far from 25 or 50
+
+
+def test_one_critic_keeps_the_single_critic_layout():
+    """num_critics=1 (the default) is the pre-ensemble learner (same parameter tree), so older runs
+    resume; their config.json, which lacks the field, reads as one critic."""
+    cfg = NewSkillConfig(hidden=(32, 32), num_critics=1)
+    state = new_skill_learner_init(jax.random.PRNGKey(0), O, A, cfg)
+    assert set(state.critic_params["params"]) == {"torso", "head"}
+    new_state, metrics = _scan_updates(new_skill_learner_update, cfg, 3)(
+        state, _new_skill_batch(jax.random.PRNGKey(1)), jax.random.PRNGKey(2))
+    assert _finite(metrics) and _finite(new_state)
+    import dataclasses
+    from parallel_skills import TrainConfig
+    from training.run import _train_config_from_json
+
+    old = dataclasses.asdict(TrainConfig())
+    del old["new_skill"]["num_critics"]
+    assert _train_config_from_json(old, "config.json").new_skill.num_critics == 1
+
+
 def test_new_skill_mpo_mix_runs():
     state = new_skill_learner_init(jax.random.PRNGKey(0), O, A, NCFG_MIX)
     batch = _new_skill_batch(jax.random.PRNGKey(1))

@@ -4,7 +4,7 @@ import numpy as np
 import jax
 import jax.numpy as jnp
 
-from parallel_skills.networks import (GaussianPolicy, QCritic, SchedulerCritic, SchedulerPolicy,
+from parallel_skills.networks import (GaussianPolicy, QCritic, QEnsemble, SchedulerCritic, SchedulerPolicy,
                                       all_pairs, deterministic_action, gaussian_log_prob,
                                       joint_log_probs, length_bias, sample_action)
 
@@ -65,6 +65,18 @@ def test_q_critic_shape():
     obs, act = jnp.ones((3, 4, O)), jnp.zeros((3, 4, A))
     params = net.init(jax.random.PRNGKey(0), obs, act)
     assert net.apply(params, obs, act).shape == (3, 4)
+
+
+def test_q_ensemble_has_independent_critics():
+    net = QEnsemble(hidden=(16, 8), num_critics=3)
+    obs, act = jnp.ones((3, 4, O)), jnp.zeros((3, 4, A))
+    params = net.init(jax.random.PRNGKey(0), obs, act)
+    q = net.apply(params, obs, act)
+    assert q.shape == (3, 4, 3)
+    assert len(np.unique(np.round(np.asarray(q[0, 0]), 6))) == 3  # own initialisations
+    # Critic e of the ensemble is a QCritic with the e-th slice of the parameters.
+    one = jax.tree_util.tree_map(lambda x: x[1], params["params"]["critics"])
+    np.testing.assert_allclose(QCritic(hidden=(16, 8)).apply({"params": one}, obs, act), q[..., 1], rtol=1e-5)
 
 
 def test_scheduler_critic_matches_numpy_head():

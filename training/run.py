@@ -44,11 +44,13 @@ DEFAULTS = dict(task="lift", physics="kinematic", seed=0, skills="useful", skill
 METHODS = ("skills", "scratch")
 # Integer config fields that must be >= 1 (other integer fields must be >= 0).
 POSITIVE_FIELDS = {"num_envs", "replay_size", "unroll_length", "eval_episodes", "eval_every", "batch_size",
-                   "target_actor_period", "target_critic_period", "num_action_samples", "mpo_num_samples"}
+                   "target_actor_period", "target_critic_period", "num_action_samples", "mpo_num_samples",
+                   "num_critics"}
 CSV_FIELDS = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skill_return", "eval/scheduler_success",
               "eval/scheduler_return", "episode_success", "episode_return", "new_skill_selection_rate",
               "scheduler/critic_loss", "new_skill/critic_loss", "scheduler/policy_entropy_i", "skill_histogram",
-              "length_histogram", "skill_steps", "skill_runs"]
+              "length_histogram", "skill_steps", "skill_runs", "scheduler/q_mean", "new_skill/q_mean",
+              "new_skill/crr_weight_mean", "new_skill/policy_log_std_mean"]
 DEFAULT_CACHE_DIR = os.path.join(os.path.expanduser("~"), ".cache", "parallel_skills_jax")
 
 
@@ -281,8 +283,13 @@ def prepare_new(args, argv):
 
 
 def _train_config_from_json(data, where):
+    """The TrainConfig a run's config.json records. Fields added since a run was started take the
+    value that run had: runs from before ``new_skill.num_critics`` existed trained one critic."""
     from parallel_skills import TrainConfig
 
+    data = dict(data)
+    if isinstance(data.get("new_skill"), dict) and "num_critics" not in data["new_skill"]:
+        data["new_skill"] = dict(data["new_skill"], num_critics=1)
     return apply_config(TrainConfig(), data, where)
 
 
