@@ -44,14 +44,10 @@ def scripted_run(env, name: str, state, steps: int):
 
     fn = jax.vmap(scripted.get(name))
 
-    @jax.jit
-    def run(state):
-        def body(s, k):
-            return jax.vmap(env.step)(s, fn(s.obs, jax.random.split(k, s.obs.shape[0]))), None
+    def act(obs, key):
+        return fn(obs, jax.random.split(key, obs.shape[0]))
 
-        return jax.lax.scan(body, state, jax.random.split(jax.random.PRNGKey(0), steps))[0]
-
-    return run(state)
+    return rollout(env, act, state, steps, jax.random.PRNGKey(0))[0]
 
 
 def reference_states(env, num_envs: int, seed: int) -> dict:
@@ -81,15 +77,15 @@ def restore(run_dir: str, step):
 
 
 def rollout(env, act, state, steps: int, key):
-    """Run ``act(obs [N, O], key) -> action [N, A]`` for ``steps`` steps; reward and grasp flag
-    after each step, [steps, N] each."""
+    """Run ``act(obs [N, O], key) -> action [N, A]`` for ``steps`` steps from the batched state:
+    (final state, (reward, grasp flag) after each step, [steps, N] each)."""
     from tasks.manipulation import layout
 
     def body(s, k):
         s = jax.vmap(env.step)(s, act(s.obs, k))
         return s, (s.reward, s.obs[:, layout.GRASP])
 
-    return jax.jit(lambda st, k: jax.lax.scan(body, st, jax.random.split(k, steps))[1])(state, key)
+    return jax.jit(lambda st, k: jax.lax.scan(body, st, jax.random.split(k, steps)))(state, key)
 
 
 def q_summary(q) -> dict:
@@ -132,7 +128,7 @@ def analyse(run_dir: str, step, num_envs: int, seed: int) -> dict:
     for start in ("hover", "released"):
         for mode in ("mean", "sample"):
             rew, grasp = (np.asarray(x) for x in rollout(env, act(mode == "mean"), states[start], ROLLOUT_STEPS,
-                                                          jax.random.PRNGKey(11)))
+                                                          jax.random.PRNGKey(11))[1])
             res[f"roll_{start}_{mode}"] = {"reward_any": float((rew.max(0) > 0).mean()),
                                            "reward_end": float((rew[-1] > 0).mean()),
                                            "released_any": float((grasp < 0.5).any(0).mean()),
@@ -148,7 +144,7 @@ def analyse(run_dir: str, step, num_envs: int, seed: int) -> dict:
     gamma = float(nc.discount)
     for name in ("open", "hold"):
         s1 = jax.vmap(env.step)(states["hover"], fixed(ACTIONS[name])(states["hover"].obs))
-        rew, _ = rollout(env, act(True), s1, MC_STEPS - 1, jax.random.PRNGKey(0))
+        rew, _ = rollout(env, act(True), s1, MC_STEPS - 1, jax.random.PRNGKey(0))[1]
         rew = np.concatenate([np.asarray(s1.reward)[None], np.asarray(rew)], 0)  # [MC_STEPS, N]
         res[f"mc_{name}"] = float(((gamma ** np.arange(MC_STEPS))[:, None] * rew).sum(0).mean())
 
