@@ -86,6 +86,10 @@ class NewSkillConfig:
     # states; 2.5-8x the measured return at hover states); two critics keep it below the bound, but
     # did not make stack learn within 200k steps (docs/learning.md), so the default stays 1.
     num_critics: int = 1
+    # n-step TD targets for the critic (parallel_skills.nstep; the paper's learner trains on
+    # trajectories of length 10, App. B.3). 1: one-step TD over single transitions (the layout and
+    # numerics of runs from before this field). Uncorrected returns of the behaviour's next n steps.
+    n_step: int = 1
     # α = 1: pure CRR; α < 1: loss = α·CRR + (1 − α)·MPO (App. B "baselines").
     mpo_alpha: float = 1.0
     mpo_num_samples: int = 20  # sampled actions for the Gaussian MPO E-step.
@@ -109,5 +113,7 @@ class NewSkillConfig:
             raise ValueError(f"crr_mode must be 'exp' or 'indicator', got {self.crr_mode!r}")
         if int(self.num_critics) < 1:
             raise ValueError(f"num_critics must be a positive integer, got {self.num_critics}")
+        if int(self.n_step) < 1:
+            raise ValueError(f"n_step must be a positive integer, got {self.n_step}")
         if not 0.0 <= self.mpo_alpha <= 1.0:
             raise ValueError(f"mpo_alpha must be in [0, 1], got {self.mpo_alpha}")

@@ -26,6 +26,7 @@ from flax import struct
 
 from parallel_skills import learners, networks
 from parallel_skills import normalization as obs_norm
+from parallel_skills import nstep
 from parallel_skills.augmentation import with_augmentation
 from parallel_skills.config import NewSkillConfig, SchedulerConfig
 from parallel_skills.counters import advance_counters
@@ -128,6 +129,10 @@ class TrainingState:
     key: jax.Array
     env_steps: jax.Array
     iteration: jax.Array
+    # new_skill.n_step > 1: the last n − 1 collected steps of every env ([n − 1, B, ...] replay
+    # fields + done), inserted with the next unroll once their n-step returns are known
+    # (parallel_skills.nstep). None for 1-step runs (their checkpoints keep their structure).
+    pending: Any = None
 
 
 def _finite(x):
@@ -181,6 +186,7 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
     sched_apply = learners.make_scheduler_apply(n_total, sc)
     new_apply = learners.make_new_skill_apply(action_size, nc)
     learn_scheduler = config.method == "skills"
+    n_step = int(nc.n_step)
 
     steps_per_iter = B * T
     n_sched = learners.updates_per_iteration(sc.samples_per_insert, steps_per_iter, sc.batch_size)
@@ -196,7 +202,15 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
             discount=jnp.zeros((), f), next_obs=jnp.zeros((obs_size,), f), skill=jnp.zeros((), jnp.int32),
             k_idx=jnp.zeros((), jnp.int32), c=jnp.zeros((), jnp.int32), is_decision=jnp.zeros((), bool),
             weight=jnp.zeros((), f),
-        )
+        ) | (dict(nstep_reward=jnp.zeros((), f), nstep_discount=jnp.zeros((), f),
+                  nstep_next_obs=jnp.zeros((obs_size,), f), nstep_weight=jnp.zeros((), f)) if n_step > 1 else {})
+
+    def empty_pending():
+        """n − 1 placeholder steps per env: weight 0 (never learnt from), done (no return reaches
+        past them)."""
+        tr = {k: v for k, v in empty_transition().items() if not k.startswith("nstep_")}
+        tr["done"] = jnp.ones((), bool)
+        return jax.tree.map(lambda x: jnp.broadcast_to(x, (n_step - 1, B) + x.shape), tr)
 
     def reset_actor(key) -> ActorState:
         env_state = jax.vmap(env.reset)(jax.random.split(key, B))
@@ -214,6 +228,7 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
             key=k_run,
             env_steps=jnp.zeros((), jnp.int32),
             iteration=jnp.zeros((), jnp.int32),
+            pending=empty_pending() if n_step > 1 else None,
         )
 
     def act(actor: ActorState, sched_params, new_params, normalizer, key, greedy: bool = False):
@@ -286,6 +301,8 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
         b = dict(b)
         b["obs"] = obs_norm.normalize(normalizer, b["obs"])
         b["next_obs"] = obs_norm.normalize(normalizer, b["next_obs"])
+        if n_step > 1:
+            b["nstep_next_obs"] = obs_norm.normalize(normalizer, b["nstep_next_obs"])
         return b
 
     def sample_scheduler_batch(replay, normalizer, key):
@@ -304,7 +321,11 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
         def new_body(state, k):
             k1, k2 = jax.random.split(k)
             b = normalized(new_buffer.sample(ts.replay, k1).experience, ts.normalizer)
-            batch = {k_: b[k_] for k_ in ("obs", "action", "reward", "discount", "next_obs", "weight")}
+            if n_step > 1:  # the learner's 1-step target r + γ·d·Q' becomes the n-step one
+                batch = {"obs": b["obs"], "action": b["action"], "reward": b["nstep_reward"],
+                         "discount": b["nstep_discount"], "next_obs": b["nstep_next_obs"], "weight": b["nstep_weight"]}
+            else:
+                batch = {k_: b[k_] for k_ in ("obs", "action", "reward", "discount", "next_obs", "weight")}
             return learners.new_skill_learner_update(state, batch, k2, nc)
 
         size = jnp.where(ts.replay.is_full, capacity, ts.replay.current_index)
@@ -328,10 +349,19 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
     def collect_insert(ts: TrainingState, key):
         """Acting half of an iteration: T steps of the B envs, inserted into the replay."""
         actor, traj, stats = collect(ts, key)
-        flat = jax.tree.map(lambda x: x.reshape((T * B,) + x.shape[2:]), traj)
+        pending = ts.pending
+        if n_step > 1:  # insert the T steps that now have their n-step returns (n − 1 steps late)
+            window = jax.tree.map(lambda p, x: jnp.concatenate([p, x], axis=0), pending,
+                                  dict(traj, done=stats["done"]))
+            pending = jax.tree.map(lambda x: x[T:], window)
+            ready = {k: v[:T] for k, v in window.items() if k != "done"}
+            ready.update(nstep.nstep_fields(window, n_step, nc.discount))
+        else:
+            ready = traj
+        flat = jax.tree.map(lambda x: x.reshape((T * B,) + x.shape[2:]), ready)
         replay = sched_buffer.add(ts.replay, flat)
-        normalizer = obs_norm.update(ts.normalizer, flat["obs"], flat["weight"])
-        return ts.replace(replay=replay, actor=actor, normalizer=normalizer), traj, stats
+        normalizer = obs_norm.update(ts.normalizer, traj["obs"].reshape(T * B, -1), traj["weight"].reshape(T * B))
+        return ts.replace(replay=replay, actor=actor, normalizer=normalizer, pending=pending), traj, stats
 
     def iteration(ts: TrainingState):
         key, k_collect, k_learn = jax.random.split(ts.key, 3)

@@ -25,7 +25,10 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TINY = {"num_envs": 4, "unroll_length": 5, "replay_size": 2000, "eval_episodes": 2,
         "scheduler": {"skill_lengths": [2, 3], "hidden": [32, 32], "critic_head_hidden": [16], "batch_size": 16,
                       "min_replay_size": 10, "samples_per_insert": 4.0},
-        "new_skill": {"hidden": [32, 32], "batch_size": 16, "min_replay_size": 10, "samples_per_insert": 4.0}}
+        # n_step 2: the checkpoint also holds the collector's pending steps (parallel_skills.nstep); a
+        # 1-step run's state is the same tree without them.
+        "new_skill": {"hidden": [32, 32], "batch_size": 16, "min_replay_size": 10, "samples_per_insert": 4.0,
+                      "n_step": 2}}
 ITERATIONS = 12  # 20 env steps each; evaluations at 3, 6, 9, 12; checkpoints every 2 iterations
 
 

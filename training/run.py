@@ -45,7 +45,7 @@ METHODS = ("skills", "scratch")
 # Integer config fields that must be >= 1 (other integer fields must be >= 0).
 POSITIVE_FIELDS = {"num_envs", "replay_size", "unroll_length", "eval_episodes", "eval_every", "batch_size",
                    "target_actor_period", "target_critic_period", "num_action_samples", "mpo_num_samples",
-                   "num_critics"}
+                   "num_critics", "n_step"}
 CSV_FIELDS = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skill_return", "eval/scheduler_success",
               "eval/scheduler_return", "episode_success", "episode_return", "new_skill_selection_rate",
               "scheduler/critic_loss", "new_skill/critic_loss", "scheduler/policy_entropy_i", "skill_histogram",
