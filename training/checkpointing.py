@@ -29,6 +29,7 @@ unfinished temporary directory is ignored). The latest ``MAX_TO_KEEP`` (2) are k
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from typing import Callable, Optional
 
@@ -77,6 +78,17 @@ def _like_fresh(tree, abstract):
     return jax.tree.map(one, tree, abstract)
 
 
+def _state_tree(state) -> dict:
+    """The ``state`` item as written to disk: the TrainingState's fields as a dict, the replay as
+    None (it is its own item), and optional fields that are None left out. Omitting them keeps
+    every run's on-disk tree what it was before the field existed (``pending`` is None for 1-step
+    runs: checkpoints written before it restore, and new 1-step ones match them); orbax stores a
+    dataclass and a dict of its fields alike."""
+    tree = {f.name: getattr(state, f.name) for f in dataclasses.fields(state)}
+    tree["replay"] = None
+    return {k: v for k, v in tree.items() if v is not None or k == "replay"}
+
+
 class Checkpointer:
     """Saves and restores checkpoints in ``run_dir/checkpoints`` (see the module docstring)."""
 
@@ -110,7 +122,7 @@ class Checkpointer:
         import orbax.checkpoint as ocp
 
         host = dict(host_state, replay_saved=self.save_replay)
-        items = {"state": ocp.args.StandardSave(state.replace(replay=None)), "host": ocp.args.JsonSave(host)}
+        items = {"state": ocp.args.StandardSave(_state_tree(state)), "host": ocp.args.JsonSave(host)}
         if self.save_replay:
             items["replay"] = ocp.args.StandardSave(state.replay)
         mgr = self._mgr()
@@ -130,7 +142,7 @@ class Checkpointer:
         mgr = self._mgr()
         try:
             host = mgr.restore(step, args=ocp.args.Composite(host=ocp.args.JsonRestore())).host
-            items = {"state": ocp.args.StandardRestore(abstract_state.replace(replay=None))}
+            items = {"state": ocp.args.StandardRestore(_state_tree(abstract_state))}
             if host.get("replay_saved", True):
                 items["replay"] = ocp.args.StandardRestore(abstract_state.replay)
             restored = mgr.restore(step, args=ocp.args.Composite(**items))
@@ -138,7 +150,8 @@ class Checkpointer:
             first = str(e).strip().splitlines()[0] if str(e).strip() else ""
             raise CheckpointError(f"checkpoint {os.path.join(self.directory, str(step))} does not match this "
                                   f"run's training state ({type(e).__name__}: {first[:200]})") from None
-        state = _like_fresh(restored.state, abstract_state.replace(replay=None))
+        fields = _like_fresh(restored.state, _state_tree(abstract_state))
+        state = abstract_state.replace(**fields)
         if host.get("replay_saved", True):
             replay = _like_fresh(restored.replay, abstract_state.replay)
         elif fresh_replay is not None:
