@@ -150,3 +150,18 @@ def test_load_skills_prefers_the_skill_dir(tmp_path):
         skill_sets.load_skills(["reach_green"], "kinematic", "scripted", obs + 1, act, skill_dir=str(tmp_path))
     with pytest.raises(ValueError, match="does not exist"):
         skill_sets.load_skills(["reach_green"], "kinematic", "scripted", obs, act, skill_dir=str(tmp_path / "nope"))
+
+
+def test_total_training_wall_time_reads_runs_recorded_without_it(tmp_path):
+    """Stages recorded before ``training_wall_time_s`` existed: their run's metrics.csv has the time
+    summed over resumes (the record's ``wall_time_s`` is only the last call's)."""
+    from training.chain import total_training_wall_time
+
+    old = tmp_path / "lift_green"
+    old.mkdir()
+    (old / "metrics.csv").write_text("env_steps,wall_time\n100,50.5\n200,3688.25\n")
+    record = {"stages": {
+        "lift_green": {"run_dir": str(old), "wall_time_s": 3601.4},
+        "lift_yellow": {"run_dir": str(tmp_path / "gone"), "wall_time_s": 2592.8, "training_wall_time_s": 2593.0},
+        "stack": {"run_dir": str(tmp_path / "gone"), "wall_time_s": 10.0}}}
+    assert total_training_wall_time(record) == pytest.approx(3688.2 + 2593.0 + 10.0)

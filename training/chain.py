@@ -183,10 +183,18 @@ def main(argv=None):
         save_record()
         print(f"[chain] {task}: new skill success={result['success']:.4f} over {args.eval_episodes} episodes "
               f"-> {result['skill']} ({wall:.0f} s)", flush=True)
-    total = sum(s.get("training_wall_time_s") or s["wall_time_s"] for s in record["stages"].values())
+    total = total_training_wall_time(record)
     summary = ", ".join("%s %.3f" % (t, record["stages"][t]["success"]) for t in stages)
     print(f"[chain] done: {summary}; "
           f"training wall time {total:.0f} s (this call {time.perf_counter() - t_chain:.0f} s)")
+
+
+def total_training_wall_time(record: dict) -> float:
+    """Seconds of training of the chain's finished stages, each summed over its resumes: the stage's
+    ``training_wall_time_s``, else its run's metrics.csv (records written before that field), else
+    the last call's ``wall_time_s``."""
+    return sum(s.get("training_wall_time_s") or training_wall_time(s.get("run_dir", "")) or s["wall_time_s"]
+               for s in record["stages"].values())
 
 
 def training_wall_time(run_dir: str):
