@@ -360,7 +360,8 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
             ready = traj
         flat = jax.tree.map(lambda x: x.reshape((T * B,) + x.shape[2:]), ready)
         replay = sched_buffer.add(ts.replay, flat)
-        normalizer = obs_norm.update(ts.normalizer, traj["obs"].reshape(T * B, -1), traj["weight"].reshape(T * B))
+        fresh = jax.tree.map(lambda x: x.reshape((T * B,) + x.shape[2:]), {k: traj[k] for k in ("obs", "weight")})
+        normalizer = obs_norm.update(ts.normalizer, fresh["obs"], fresh["weight"])  # this unroll's steps
         return ts.replace(replay=replay, actor=actor, normalizer=normalizer, pending=pending), traj, stats
 
     def iteration(ts: TrainingState):
