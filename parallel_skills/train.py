@@ -358,10 +358,11 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
             ready.update(nstep.nstep_fields(window, n_step, nc.discount))
         else:
             ready = traj
-        flat = jax.tree.map(lambda x: x.reshape((T * B,) + x.shape[2:]), ready)
-        replay = sched_buffer.add(ts.replay, flat)
-        fresh = jax.tree.map(lambda x: x.reshape((T * B,) + x.shape[2:]), {k: traj[k] for k in ("obs", "weight")})
-        normalizer = obs_norm.update(ts.normalizer, fresh["obs"], fresh["weight"])  # this unroll's steps
+        def flat(x):  # [T, B, ...] -> [T·B, ...]
+            return x.reshape((T * B,) + x.shape[2:])
+
+        replay = sched_buffer.add(ts.replay, jax.tree.map(flat, ready))
+        normalizer = obs_norm.update(ts.normalizer, flat(traj["obs"]), flat(traj["weight"]))  # this unroll's steps
         return ts.replace(replay=replay, actor=actor, normalizer=normalizer, pending=pending), traj, stats
 
     def iteration(ts: TrainingState):

@@ -190,11 +190,17 @@ def main(argv=None):
 
 
 def total_training_wall_time(record: dict) -> float:
-    """Seconds of training of the chain's finished stages, each summed over its resumes: the stage's
-    ``training_wall_time_s``, else its run's metrics.csv (records written before that field), else
-    the last call's ``wall_time_s``."""
-    return sum(s.get("training_wall_time_s") or training_wall_time(s.get("run_dir", "")) or s["wall_time_s"]
+    """Seconds of training of the chain's finished stages (``stage_training_wall_time``; else the
+    last call's ``wall_time_s``)."""
+    return sum(stage_training_wall_time(s, s.get("run_dir", "")) or s["wall_time_s"]
                for s in record["stages"].values())
+
+
+def stage_training_wall_time(stage: dict, run_dir: str):
+    """A chain stage's training wall time summed over its resumes: its record's
+    ``training_wall_time_s``, else ``run_dir``'s metrics.csv (records written before that field),
+    else None."""
+    return stage.get("training_wall_time_s") or training_wall_time(run_dir)
 
 
 def training_wall_time(run_dir: str):

@@ -85,7 +85,7 @@ def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=
     """Copy, evaluate, and write the sidecar (see the module docstring). Returns the sidecar."""
     from parallel_skills import Skill
     from tasks.manipulation import skill_sets
-    from training.chain import training_wall_time
+    from training.chain import stage_training_wall_time
     from training.evaluate import evaluate_policy
     from training.export import file_sha256
 
@@ -123,7 +123,7 @@ def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=
     policy = f"checkpoints/{library}/{stage}.npz" if default_root else dst
     eval_command = (f"python -m training.evaluate --task {stage} --physics {physics} --policy {policy} "
                     f"--episodes {episodes} --seed {seed}")
-    wall = stage_record.get("training_wall_time_s") or training_wall_time(run_dir)
+    wall = stage_training_wall_time(stage_record, run_dir)
     side = library_sidecar(meta, record, stage_record, run_config, stage=stage, success=success, ret=ret,
                            episodes=episodes, seed=seed, eval_command=eval_command,
                            ship_command=ship_command, wall_time_s=wall)
