@@ -68,7 +68,33 @@ def test_chain_lift_then_stack_feeds_the_new_skill_forward_and_continues(tmp_pat
     # Another command on the same directory is refused, one line, exit 2.
     r3 = _chain(argv[:-2] + ["--eval_episodes", "3"], tmp_path)
     assert r3.returncode == 2 and r3.stderr.startswith("error:") and len(r3.stderr.strip().splitlines()) == 1
+    _check_raised_budgets(tmp_path, argv)
     _check_ship(tmp_path, capsys)
+
+
+def _check_raised_budgets(tmp_path, argv):
+    """A rerun may raise a stage's budget: that stage is extended (its shorter run's outputs kept)
+    and published again; lowering a budget, or extending a stage whose skill a later stage trained
+    with, is refused in one line."""
+    chain = tmp_path / "chain"
+    for extra, needle in [(["--timesteps", "lift_green=80"], "stage stack was trained with the skill of lift_green"),
+                          (["--stack_timesteps", "20"], "can be raised, not lowered"),
+                          (["--timesteps", "reach_blue=80"], "--timesteps names reach_blue, not a stage"),
+                          (["--timesteps", "stack=8x"], "is not STAGE=N")]:
+        r = _chain(argv + extra, tmp_path)
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(lines) == 1 and needle in lines[0], (extra, r.stderr[-2000:])
+    before = json.load(open(chain / "chain.json"))
+    r = _chain(argv + ["--timesteps", "stack=80"], tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "[chain] lift_green: done" in r.stdout and "--resume --out chain/stack --num_timesteps 80" in r.stdout
+    record = json.load(open(chain / "chain.json"))
+    assert record["stages"]["lift_green"] == before["stages"]["lift_green"]
+    assert record["stages"]["stack"]["num_timesteps"] == 80 and record["commands"][-1] == record["command"]
+    assert record["command"].endswith("--timesteps stack=80") and len(record["commands"]) == 2
+    assert json.load(open(chain / "stack" / "export.json"))["env_steps"] == 80
+    assert json.load(open(chain / "stack" / "before_extension_40" / "export.json"))["env_steps"] == 40
+    assert json.load(open(chain / "skills" / "stack.json"))["command"] == record["command"]
 
 
 def _check_ship(tmp_path, capsys):

@@ -5,6 +5,7 @@ plus a few subprocess runs for the real stderr."""
 from __future__ import annotations
 
 import dataclasses
+import gc
 import hashlib
 import json
 import os
@@ -189,7 +190,9 @@ def test_resume_without_checkpoint_and_conflicting_flags(ws, fresh_run, capsys):
     out = ["--resume", "--out", str(fresh_run)]
     _fails(out, capsys, "holds no checkpoint")
     _fails(out + ["--seed", "4"], capsys, "--seed 4 conflicts with", "seed=3", "drop the flag")
-    _fails(out + ["--num_timesteps", "200"], capsys, "--num_timesteps 200 conflicts", "num_timesteps=100")
+    _fails(out + ["--num_timesteps", "50"], capsys, "--num_timesteps 50 is below the budget", "num_timesteps=100",
+           "not shorten")
+    _fails(out + ["--num_timesteps", "200"], capsys, "holds no checkpoint")  # (a larger budget extends)
     _fails(out + ["--task", "stack"], capsys, "--task stack conflicts", '"lift"')
     _fails(out + ["--method", "scratch"], capsys, "--method scratch conflicts")
     _fails(out + ["--no-replay-checkpoint"], capsys, "--no-replay-checkpoint conflicts")
@@ -219,8 +222,14 @@ def test_resume_of_complete_run_and_of_mismatched_checkpoint(ws, fresh_run, caps
     before = _snapshot(ws)
     _fails(["--resume", "--out", str(fresh_run)], capsys, "does not match this run's training state")
     assert _snapshot(ws) == before
+    # orbax leaves the failed restore's read coroutines behind; they print to stderr when collected.
+    gc.collect()
+    capsys.readouterr()
     (fresh_run / "export.json").write_text("{}")
-    _fails(["--resume", "--out", str(fresh_run)], capsys, "is complete")
+    _fails(["--resume", "--out", str(fresh_run)], capsys, "export.json is unreadable")
+    (fresh_run / "export.json").write_text(json.dumps({"env_steps": 100, "metadata": {"num_timesteps": 100}}))
+    _fails(["--resume", "--out", str(fresh_run)], capsys, "is complete", "--num_timesteps N, N > 100")
+    _fails(["--resume", "--out", str(fresh_run), "--num_timesteps", "100"], capsys, "is complete")
 
 
 @pytest.mark.parametrize("argv,needle", [

@@ -32,12 +32,12 @@ TINY = {"num_envs": 4, "unroll_length": 5, "replay_size": 2000, "eval_episodes":
 ITERATIONS = 12  # 20 env steps each; evaluations at 3, 6, 9, 12; checkpoints every 2 iterations
 
 
-def _args(tmp, out, *extra):
+def _args(tmp, out, *extra, iterations=ITERATIONS):
     cfg = os.path.join(tmp, "tiny.json")
     if not os.path.exists(cfg):
         with open(cfg, "w") as f:
             json.dump(TINY, f)
-    return ["--task", "lift", "--config", cfg, "--num_timesteps", str(20 * ITERATIONS), "--episode_length", "20",
+    return ["--task", "lift", "--config", cfg, "--num_timesteps", str(20 * iterations), "--episode_length", "20",
             "--eval_every", "3", "--checkpoint_every", "40", "--seed", "1", *extra, "--out", out]
 
 
@@ -161,3 +161,35 @@ def test_resume_without_replay_checkpoint(uninterrupted):
     assert rows[:-1] == _rows(run_a)[:-1]
     ckpt_dir = os.path.join(run_c, CHECKPOINT_SUBDIR)
     assert sorted(int(s) for s in os.listdir(ckpt_dir) if s.isdigit()) == [ITERATIONS - 2, ITERATIONS]
+
+
+def test_extending_a_finished_run_matches_a_run_of_the_larger_budget(uninterrupted):
+    """``--resume --num_timesteps N`` continues a finished run to N env steps: the same metrics rows
+    and final state as a run started with N (evaluations leave the training state unchanged), the
+    shorter run's outputs kept in before_extension_<budget>/."""
+    tmp, run_a = uninterrupted
+    run_e = os.path.join(tmp, "e")
+    main(_args(tmp, run_e, iterations=ITERATIONS // 2))
+    short = {n: _npz(os.path.join(run_e, n)) for n in ("new_skill.npz", "export.npz")}
+    main(["--resume", "--out", run_e, "--num_timesteps", str(20 * ITERATIONS)])
+
+    kept = os.path.join(run_e, f"before_extension_{20 * ITERATIONS // 2}")
+    for name, arrays in short.items():
+        _assert_same_arrays(_npz(os.path.join(kept, name)), arrays)
+    assert sorted(os.listdir(kept)) == ["curves.png", "export.json", "export.npz", "new_skill.json",
+                                        "new_skill.npz", "skill_usage.png"]
+    assert _rows(run_e) == _rows(run_a)
+    _assert_same_arrays(_npz(os.path.join(run_a, "export.npz")), _npz(os.path.join(run_e, "export.npz")))
+    step_a, leaves_a, host_a = _final_state(run_a)
+    step_e, leaves_e, host_e = _final_state(run_e)
+    assert step_a == step_e == ITERATIONS and host_a == host_e
+    for x, y in zip(leaves_a, leaves_e):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    with open(os.path.join(run_e, "config.json")) as f:
+        cfg = json.load(f)
+    assert cfg["num_timesteps"] == 20 * ITERATIONS
+    assert cfg["extensions"] == [{"from": 20 * ITERATIONS // 2, "to": 20 * ITERATIONS,
+                                  "command": f"python -m training.run --resume --out {run_e} "
+                                             f"--num_timesteps {20 * ITERATIONS}"}]
+    with open(os.path.join(run_e, "export.json")) as f:
+        assert json.load(f)["metadata"]["extensions"] == cfg["extensions"]

@@ -12,8 +12,12 @@ and the command that measures it); later stages find it there (stack's useful se
 (``training_wall_time_s``: summed over resumes) and success.
 
 Rerunning the same command continues a chain: finished stages are skipped, an interrupted stage is
-resumed from its latest checkpoint (``training.run --resume``). Bad input: one ``error:`` line,
-exit 2, nothing written.
+resumed from its latest checkpoint (``training.run --resume``). A rerun may raise stage budgets
+(``--lift_timesteps``, ``--stack_timesteps``, ``--timesteps STAGE=N``): a stage below its new budget
+is extended (``training.run --resume --num_timesteps N``, which keeps the shorter run's outputs) and
+published again, unless a later stage already trained with its skill (refused: that stage would be
+stale). Any other change of the command is refused. Bad input: one ``error:`` line, exit 2, nothing
+written.
 """
 
 from __future__ import annotations
@@ -26,10 +30,14 @@ import sys
 import time
 
 from training.cli import Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int
+from training.run import exported_budget
 
 STAGES = ("lift_green", "lift_yellow", "lift_blue", "stack")
-# Env steps per stage on a CPU: kinematic lift reaches 0.8-0.9 after 250k-300k (docs/learning.md).
-DEFAULT_TIMESTEPS = {"lift": 300_000, "stack": 1_000_000}
+# Env steps per stage on a CPU: kinematic lift reaches 0.8-0.9 after 250k-300k (docs/learning.md);
+# stack's new skill alone 0.13 at 1M, 0.84-0.88 at 2M (seed 0, README Results).
+DEFAULT_TIMESTEPS = {"lift": 300_000, "stack": 2_000_000}
+# Arguments that only set budgets: a rerun may raise them (the stages below them are extended).
+BUDGET_ARGS = ("lift_timesteps", "stack_timesteps", "timesteps")
 
 
 def build_parser():
@@ -45,7 +53,9 @@ def build_parser():
     p.add_argument("--lift_timesteps", type=positive_int, default=DEFAULT_TIMESTEPS["lift"],
                    help="env steps of each lift stage (default 300k)")
     p.add_argument("--stack_timesteps", type=positive_int, default=DEFAULT_TIMESTEPS["stack"],
-                   help="env steps of the stack stage and any other task (default 1M)")
+                   help="env steps of the stack stage and any other task (default 2M)")
+    p.add_argument("--timesteps", default="", metavar="STAGE=N[,STAGE=N]",
+                   help="env steps of single stages, over the two above (e.g. lift_blue=450000)")
     p.add_argument("--skill_source", default="scripted", choices=list(SOURCES),
                    help="where the basic skills come from (the chain's own new skills always come from DIR/skills)")
     p.add_argument("--num_envs", type=positive_int, default=None)
@@ -55,14 +65,30 @@ def build_parser():
     return p
 
 
+def parse_stage_timesteps(text: str) -> dict:
+    """``--timesteps "lift_blue=450000,stack=3000000"`` -> {"lift_blue": 450000, "stack": 3000000}."""
+    out = {}
+    for item in (t.strip() for t in text.split(",")):
+        if not item:
+            continue
+        name, _, value = item.partition("=")
+        if not value.strip().isdigit() or int(value) < 1:
+            raise UsageError(f"--timesteps item {item!r} is not STAGE=N with N a positive integer")
+        out[name.strip()] = int(value)
+    return out
+
+
 def stage_timesteps(task: str, args) -> int:
+    per_stage = parse_stage_timesteps(args.timesteps)
+    if task in per_stage:
+        return per_stage[task]
     return args.lift_timesteps if task.startswith("lift") else args.stack_timesteps
 
 
 def stage_argv(task: str, args, skill_dir: str, run_dir: str, resume: bool) -> list[str]:
-    """The ``training.run`` arguments of one stage."""
+    """The ``training.run`` arguments of one stage (a resume also names the budget: it may extend)."""
     if resume:
-        return ["--resume", "--out", run_dir]
+        return ["--resume", "--out", run_dir, "--num_timesteps", str(stage_timesteps(task, args))]
     argv = ["--task", task, "--physics", args.physics, "--seed", str(args.seed), "--skills", "useful",
             "--skill_source", args.skill_source, "--skill_dir", skill_dir,
             "--num_timesteps", str(stage_timesteps(task, args)), "--out", run_dir]
@@ -88,6 +114,9 @@ def validate(args) -> list[str]:
                              f"{', '.join(sorted(skill_sets.TABLE))}")
     if len(set(stages)) != len(stages):
         raise UsageError(f"--stages repeats a task: {args.stages}")
+    unknown = sorted(set(parse_stage_timesteps(args.timesteps)) - set(stages))
+    if unknown:
+        raise UsageError(f"--timesteps names {', '.join(unknown)}, not a stage of this chain; stages: {', '.join(stages)}")
     if args.physics not in tasks.PHYSICS:
         raise UsageError(f"unknown physics {args.physics!r}; valid: {', '.join(tasks.PHYSICS)}")
     if args.config and not os.path.isfile(args.config):
@@ -98,20 +127,62 @@ def validate(args) -> list[str]:
     return stages
 
 
+def same_chain(command_a: str, command_b: str) -> bool:
+    """Whether two chain commands differ at most in their budgets (``BUDGET_ARGS``) and spelling."""
+    parser = build_parser()
+
+    def settings(cmd):
+        args = vars(parser.parse_args(cmd.split()[3:]))  # (after "python -m training.chain")
+        args["out"] = os.path.normpath(args["out"])
+        return {k: v for k, v in args.items() if k not in BUDGET_ARGS}
+
+    try:
+        return settings(command_a) == settings(command_b)
+    except SystemExit:  # a command this version does not parse
+        return False
+
+
 def load_record(record_path: str, chain_command: str) -> dict:
-    """The chain's record: new, or the one a previous call of the same command left."""
+    """The chain's record: new, or the one a previous call of the same chain (``same_chain``) left;
+    ``command`` is the latest call's, ``commands`` all of them."""
     if not os.path.isfile(record_path):
-        return {"command": chain_command, "stages": {}}
+        return {"command": chain_command, "commands": [chain_command], "stages": {}}
     try:
         with open(record_path) as f:
             record = json.load(f)
         assert isinstance(record, dict) and isinstance(record.get("stages"), dict)
     except (OSError, ValueError, AssertionError):
         raise UsageError(f"{record_path} is unreadable; choose a new --out") from None
-    if record.get("command") != chain_command:
+    if not same_chain(str(record.get("command")), chain_command):
         raise UsageError(f"{record_path} was made by another command ({record.get('command')}); continue it with "
-                         "that command, or choose a new --out")
+                         "that command (stage budgets may be raised), or choose a new --out")
+    commands = record.get("commands") or [record["command"]]
+    if commands[-1] != chain_command:
+        commands.append(chain_command)
+    record.update(command=chain_command, commands=commands)
     return record
+
+
+def check_budgets(stages: list[str], args, out: str) -> None:
+    """Refuse a budget below a stage's, and the extension of a stage whose skill a later stage
+    (started already) trained with."""
+    extended = []
+    for task in stages:
+        cfg_path = os.path.join(out, task, "config.json")
+        if not os.path.isfile(cfg_path):
+            continue
+        with open(cfg_path) as f:
+            run = json.load(f)
+        budget, wanted = int(run["num_timesteps"]), stage_timesteps(task, args)
+        if wanted < budget:
+            raise UsageError(f"stage {task} has a budget of {budget} env steps ({cfg_path}); the command asks for "
+                             f"{wanted}: a chain's budgets can be raised, not lowered")
+        users = [t for t in extended if t in run.get("skills", [])]
+        if users:
+            raise UsageError(f"stage {task} was trained with the skill of {', '.join(users)}, which this command "
+                             f"extends; it would be stale: choose a new --out")
+        if wanted > budget:
+            extended.append(task)
 
 
 def publish_skill(task: str, args, run_dir: str, skill_dir: str, chain_command: str) -> dict:
@@ -144,6 +215,7 @@ def main(argv=None):
     skill_dir = os.path.join(out, "skills")
     record_path = os.path.join(out, "chain.json")
     record = main_guard(lambda: load_record(record_path, chain_command))
+    main_guard(lambda: check_budgets(stages, args, out))
     os.makedirs(skill_dir, exist_ok=True)
 
     def save_record():
@@ -157,10 +229,13 @@ def main(argv=None):
     for task in stages:
         run_dir = os.path.join(out, task)
         published = os.path.join(skill_dir, f"{task}.json")
-        if os.path.isfile(published) and task in record["stages"]:
-            print(f"[chain] {task}: done (success {record['stages'][task]['success']:.3f}), skipped", flush=True)
+        budget = stage_timesteps(task, args)
+        done = record["stages"].get(task)
+        if os.path.isfile(published) and done and done.get("num_timesteps", budget) >= budget:
+            print(f"[chain] {task}: done (success {done['success']:.3f}), skipped", flush=True)
             continue
-        finished = os.path.isfile(os.path.join(run_dir, "export.json"))
+        exported = main_guard(lambda: exported_budget(run_dir)) if os.path.isdir(run_dir) else None
+        finished = exported is not None and exported >= budget
         resume = os.path.isdir(run_dir) and not finished
         sargv = stage_argv(task, args, skill_dir, run_dir, resume)
         if not finished:
@@ -177,7 +252,7 @@ def main(argv=None):
         result = publish_skill(task, args, run_dir, skill_dir, chain_command)
         record["stages"][task] = dict(result, run_dir=run_dir, wall_time_s=round(wall, 1),
                                       training_wall_time_s=training_wall_time(run_dir), resumed=resume,
-                                      num_timesteps=stage_timesteps(task, args),
+                                      num_timesteps=budget,
                                       run_command="python -m training.run " + " ".join(
                                           stage_argv(task, args, skill_dir, run_dir, False)))
         save_record()

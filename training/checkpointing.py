@@ -78,6 +78,39 @@ def _like_fresh(tree, abstract):
     return jax.tree.map(one, tree, abstract)
 
 
+def _leaf_specs(tree) -> dict:
+    """``{path: (shape, dtype)}`` of a tree's array leaves (abstract arrays or orbax's metadata),
+    paths as strings of dict keys / attribute names / indices alike (orbax stores dataclasses as dicts)."""
+    import jax
+    import numpy as np
+
+    def part(k):
+        for attr in ("key", "name", "idx"):
+            if hasattr(k, attr):
+                return str(getattr(k, attr))
+        return str(k)
+
+    return {"/".join(part(k) for k in path): (tuple(leaf.shape), np.dtype(leaf.dtype).name)
+            for path, leaf in jax.tree_util.tree_leaves_with_path(tree) if hasattr(leaf, "shape")}
+
+
+def _mismatch(item_dir: str, abstract) -> Optional[str]:
+    """Why the checkpoint item in ``item_dir`` cannot restore into ``abstract``, or None. Read from
+    orbax's metadata before restoring: a failed restore leaves orbax's read coroutines behind, which
+    print tracebacks to stderr when they are collected."""
+    import orbax.checkpoint as ocp
+
+    md = ocp.StandardCheckpointer().metadata(item_dir)
+    stored = _leaf_specs(getattr(md, "item_metadata", md))
+    wanted = _leaf_specs(abstract)
+    for path in sorted(set(stored) | set(wanted)):
+        if stored.get(path) != wanted.get(path):
+            have = "absent" if path not in stored else "%s %s" % (stored[path][1], list(stored[path][0]))
+            need = "absent" if path not in wanted else "%s %s" % (wanted[path][1], list(wanted[path][0]))
+            return f"{os.path.basename(item_dir)}/{path} is {have} in the checkpoint, {need} in this run"
+    return None
+
+
 def _state_tree(state) -> dict:
     """The ``state`` item as written to disk: the TrainingState's fields as a dict, the replay as
     None (it is its own item), and optional fields that are None left out. Omitting them keeps
@@ -145,7 +178,14 @@ class Checkpointer:
             items = {"state": ocp.args.StandardRestore(_state_tree(abstract_state))}
             if host.get("replay_saved", True):
                 items["replay"] = ocp.args.StandardRestore(abstract_state.replay)
+            for name, item in items.items():
+                why = _mismatch(os.path.join(self.directory, str(step), name), item.item)
+                if why:
+                    raise CheckpointError(f"checkpoint {os.path.join(self.directory, str(step))} does not match "
+                                          f"this run's training state ({why})")
             restored = mgr.restore(step, args=ocp.args.Composite(**items))
+        except CheckpointError:
+            raise
         except Exception as e:  # orbax raises several types for a tree / shape mismatch
             first = str(e).strip().splitlines()[0] if str(e).strip() else ""
             raise CheckpointError(f"checkpoint {os.path.join(self.directory, str(step))} does not match this "

@@ -3,6 +3,7 @@
     python -m training.run                                  # kinematic lift, device-sized defaults
     python -m training.run --task lift --num_envs 4096      # on a GPU
     python -m training.run --resume --out DIR               # continue a killed run exactly
+    python -m training.run --resume --out DIR --num_timesteps N   # extend a run to N env steps
 
 Writes into ``--out`` (a new directory; an existing one is only ever written into by
 ``--resume``): ``config.json`` (the whole run configuration; it fixes the config of a resumed
@@ -333,7 +334,7 @@ def prepare_resume(args):
              "skills": (args.skills, run["skill_set"]), "skill_source": (args.skill_source, run["skill_source"]),
              "skill_dir": (os.path.abspath(args.skill_dir) if args.skill_dir else None, run["skill_dir"]),
              "seed": (args.seed, run["seed"]),
-             "method": (args.method, resolved.method), "num_timesteps": (args.num_timesteps, run["num_timesteps"]),
+             "method": (args.method, resolved.method),
              "num_envs": (args.num_envs, resolved.num_envs), "episode_length": (args.episode_length, run["episode_length"]),
              "eval_every": (args.eval_every, resolved.eval_every),
              "eval_episodes": (args.eval_episodes, resolved.eval_episodes),
@@ -360,15 +361,92 @@ def prepare_resume(args):
                and not (run["skill_dir"] and os.path.isfile(os.path.join(run["skill_dir"], f"{n}.npz")))]
     if unknown and run["skill_source"] == "scripted":  # (library skills are checked when loaded)
         raise UsageError(f"cannot resume: {cfg_path} names skills {unknown} this version does not have")
-    if os.path.exists(os.path.join(out, "export.json")):
-        raise UsageError(f"run {out} is complete (it has export.json); nothing to resume")
+    budget = int(run["num_timesteps"])
+    if args.num_timesteps is not None and args.num_timesteps < budget:
+        raise UsageError(f"--num_timesteps {args.num_timesteps} is below the budget of {out} ({cfg_path}: "
+                         f"num_timesteps={budget}); --resume can extend a run, not shorten it")
+    target = max(budget, args.num_timesteps or 0)
+    exported = exported_budget(out)
+    if exported is not None and exported >= target:
+        raise UsageError(f"run {out} is complete (its export.json is at {exported} env steps); nothing to resume; "
+                         f"extend it with --resume --num_timesteps N, N > {exported}")
     ckpt = Checkpointer(out)
     if ckpt.latest_step() is None:
         raise UsageError(f"cannot resume: {out} holds no checkpoint (nothing in {ckpt.directory}); "
                          "start the run again with a new --out")
     overrides = {} if run["episode_length"] is None else {"episode_length": int(run["episode_length"])}
     env = tasks.make(run["task"], physics=run["physics"], **overrides)
-    return out, run, resolved, env
+    return out, dict(run, num_timesteps=target), resolved, env
+
+
+# ----------------------------------------------------------------------------- extending
+
+# What a finished run writes (besides metrics.csv, events and checkpoints, which an extension continues).
+FINAL_OUTPUTS = ("export.json", "export.npz", "new_skill.json", "new_skill.npz", "curves.png", "skill_usage.png",
+                 "new_skill.mp4", "new_skill.gif")
+
+
+def exported_budget(out):
+    """The ``num_timesteps`` of ``out``'s export.json (the budget the run finished), None without one."""
+    path = os.path.join(out, "export.json")
+    if not os.path.exists(path):
+        return None
+    try:
+        with open(path) as f:
+            data = json.load(f)
+        return int((data.get("metadata") or {}).get("num_timesteps", data["env_steps"]))
+    except (OSError, ValueError, KeyError, TypeError):
+        raise UsageError(f"cannot resume: {path} is unreadable; a run killed while exporting leaves no "
+                         "export.json, so this one was changed by hand") from None
+
+
+def archive_dir(out, budget: int) -> str:
+    return os.path.join(out, f"before_extension_{budget}")
+
+
+def extend_run(out, run, argv):
+    """Make ``out`` (config.json at a smaller budget, maybe finished) continue to ``run["num_timesteps"]``.
+
+    Crash-safe in three idempotent steps: the finished run's outputs (``FINAL_OUTPUTS``) are copied
+    to ``out/before_extension_<budget>/`` (a temporary directory renamed into place); config.json is
+    rewritten with the new budget and an ``extensions`` entry; the outputs are removed (the last
+    export.json first goes: until then a resume sees an unfinished extension and redoes the steps).
+    Training then continues from the latest checkpoint as an uninterrupted run of the larger budget
+    would: the state at the old budget is the same (evaluations do not change it)."""
+    import shutil
+
+    cfg_path = os.path.join(out, "config.json")
+    with open(cfg_path) as f:
+        stored = json.load(f)
+    old, new = int(stored["num_timesteps"]), int(run["num_timesteps"])
+    exported = exported_budget(out)
+    if new == old and exported is None:
+        return  # a plain resume
+    if exported is not None:
+        dst = archive_dir(out, exported)
+        if not os.path.isdir(dst):
+            tmp = dst + ".tmp"
+            shutil.rmtree(tmp, ignore_errors=True)
+            os.makedirs(tmp)
+            for name in FINAL_OUTPUTS:
+                if os.path.isfile(os.path.join(out, name)):
+                    shutil.copy2(os.path.join(out, name), os.path.join(tmp, name))
+            os.replace(tmp, dst)
+    if new != old:
+        stored["num_timesteps"] = new
+        stored.setdefault("extensions", []).append({"from": old, "to": new, "command": _command(argv)})
+        run["extensions"] = stored["extensions"]
+        tmp = cfg_path + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(stored, f, indent=2, default=str)
+        os.replace(tmp, cfg_path)
+    for name in FINAL_OUTPUTS:
+        if os.path.isfile(os.path.join(out, name)) and name != "export.json":
+            os.remove(os.path.join(out, name))
+    if exported is not None:
+        os.remove(os.path.join(out, "export.json"))
+    print(f"extending {out}: {old:,} -> {new:,} env steps"
+          + (f"; its outputs at {exported:,} are kept in {archive_dir(out, exported)}" if exported else ""))
 
 
 # ----------------------------------------------------------------------------- running
@@ -414,6 +492,8 @@ def main(argv=None):
     args = build_parser().parse_args(argv)
     enable_compilation_cache()
     out, run, resolved, env = main_guard(lambda: prepare_resume(args) if args.resume else prepare_new(args, argv))
+    if args.resume:
+        extend_run(out, run, argv)
     _train(out, run, resolved, env, resume=args.resume, video=args.video or bool(run.get("video")))
 
 
@@ -540,6 +620,8 @@ def _train(out, run, resolved, env, resume: bool, video: bool = False):
             "env_steps": metrics["env_steps"], "command": run["command"],
             "skill_set": run["skill_set"], "num_timesteps": num_timesteps,
             "success": metrics["eval/new_skill_success"], "return": metrics["eval/new_skill_return"]}
+    if run.get("extensions"):
+        meta["extensions"] = run["extensions"]
     for k in ("eval/scheduler_success", "eval/scheduler_return"):
         if k in metrics:
             meta[k.split("/")[1]] = metrics[k]
