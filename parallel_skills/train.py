@@ -486,12 +486,14 @@ def train(
     host_state: Optional[dict] = None,
     checkpoint_fn: Optional[Callable[[TrainingState, dict], None]] = None,
     checkpoint_every: Optional[int] = None,
+    step_fn: Optional[Callable[[int], None]] = None,
 ):
     """Train SkillS on ``environment`` (Brax env API) with frozen ``skills``.
 
     Returns ``(make_policy, params, metrics)``: ``params`` = {"new_skill", "scheduler"} policy
     parameters, ``metrics`` the last evaluation and training metrics (Python floats / lists).
-    ``progress_fn(env_steps, metrics)`` is called after every evaluation (Brax style).
+    ``progress_fn(env_steps, metrics)`` is called after every evaluation (Brax style);
+    ``step_fn(env_steps)`` after every iteration (a progress bar's count; a host int, no device sync).
 
     Checkpoints and exact resumption (``training.checkpointing``): ``checkpoint_fn(state,
     host_state)`` is called after the iteration in which ``env_steps`` crosses a multiple of
@@ -539,6 +541,8 @@ def train(
     for it in range(start, num_iterations):
         state, train_m = iteration(state)
         acc.add(train_m)
+        if step_fn is not None:
+            step_fn((it + 1) * spi)
         last = it == num_iterations - 1
         evaluate = (it + 1) % config.eval_every == 0 or last
         if evaluate:

@@ -272,6 +272,14 @@ def test_progress_plain_lines_without_a_terminal_and_a_bar_with_one():
     assert "\r" in bar and "50% |" in bar and "500/1,000 env steps" in bar and "new_skill success 0.25" in bar
     assert "steps/s" in bar and bar.endswith("\n") and out.getvalue().count("\n") == 1
 
+    # Iterations between evaluations move the bar (no line printed).
+    err, out = io.StringIO(), io.StringIO()
+    p = Progress(1000, stream=err, out=out, tty=True, tick=0)
+    p.advance(250)
+    assert "25% |" in p.bar() and "250/1,000 env steps" in p.bar() and "steps/s" in p.bar()
+    p.close()
+    assert out.getvalue() == ""
+
 
 # ----------------------------------------------------------------------------- video
 

@@ -108,11 +108,14 @@ def test_train_entry_point_returns_policies():
     from parallel_skills import train
 
     env = tasks.make("lift", episode_length=10)
-    seen = []
+    seen, steps = [], []
     cfg = dataclasses.replace(SMALL, eval_every=2)
     make_policy, params, metrics = train(env, _skills(), num_timesteps=60, seed=0, config=cfg,
-                                         progress_fn=lambda n, m: seen.append(n))
+                                         progress_fn=lambda n, m: seen.append(n), step_fn=steps.append)
     assert seen and seen[-1] == metrics["env_steps"] >= 60
+    spi = SMALL.num_envs * SMALL.unroll_length  # step_fn: after every iteration
+    assert steps == [spi * (i + 1) for i in range(len(steps))] and steps[-1] == metrics["env_steps"]
+    assert set(seen) <= set(steps)
     obs = env.reset(jax.random.PRNGKey(0)).obs
     a = make_policy(params, "new_skill")(obs, jax.random.PRNGKey(1))
     assert a.shape == (5,) and np.all(np.abs(np.asarray(a)) <= 1)

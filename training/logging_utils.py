@@ -100,11 +100,11 @@ def _duration(seconds: float) -> str:
 
 
 class Progress:
-    """Progress of a run, updated at every evaluation (``train`` reports only then).
+    """Progress of a run: ``update`` at every evaluation, ``advance`` at every iteration.
 
     Always one plain line per evaluation on ``out`` (stdout); when ``stream`` (stderr) is a
-    terminal, also a progress bar there, kept below those lines and redrawn every ``tick``
-    seconds (elapsed time) by a daemon thread.
+    terminal, also a progress bar there (env steps, steps/s, ETA, the latest evaluation's
+    success), kept below those lines and redrawn every ``tick`` seconds by a daemon thread.
     """
 
     def __init__(self, total_steps: int, start_steps: int = 0, stream=None, out=None,
@@ -168,6 +168,11 @@ class Progress:
             self.stream.write("\r\x1b[K")
             self.stream.flush()
             self._drawn = False
+
+    def advance(self, steps: int):
+        """The env steps done so far (the bar shows them at its next redraw)."""
+        with self._lock:
+            self.steps = int(steps)
 
     def update(self, steps: int, metrics: dict):
         with self._lock:

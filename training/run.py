@@ -599,7 +599,7 @@ def _train(out, run, resolved, env, resume: bool, video: bool = False):
         make_policy, params, metrics = train(
             env, skills, num_timesteps=num_timesteps, seed=seed, config=resolved, progress_fn=progress,
             initial_state=initial_state, host_state=host_state, checkpoint_fn=checkpoint,
-            checkpoint_every=run["checkpoint_every"])
+            checkpoint_every=run["checkpoint_every"], step_fn=bar.advance)
     bar.close()
     tb.close()
     ckpt.close()
