@@ -113,7 +113,8 @@ def _check_ship(tmp_path, capsys):
     os.chdir(tmp_path)
     try:
         main(base + ["--stage", "lift_green", "--min_success", "0"])
-        capsys.readouterr()
+        main(base + ["--stage", "stack", "--min_success", "0"])  # the library's name: stack_green_on_yellow
+        assert "shipped stack as stack_green_on_yellow" in capsys.readouterr().out
         for argv, needle in [(base + ["--stage", "lift_green", "--min_success", "0"], "already exists"),
                              (base + ["--stage", "lift_blue"], "has not finished in chain; finished stages: "
                                                                "lift_green, stack"),
@@ -133,6 +134,9 @@ def _check_ship(tmp_path, capsys):
     assert side["eval_command"] == (f"python -m training.evaluate --task lift_green --physics kinematic --policy "
                                     f"{shipped} --episodes 2 --seed 0")
     assert side["wall_time_s"] > 0 and side["min_std"] == 0.05
+    stack = json.load(open(lib / "kinematic" / "stack_green_on_yellow.json"))
+    assert stack["name"] == stack["task"] == "stack_green_on_yellow" and stack["training"]["chain_stage"] == "stack"
+    assert "--task stack_green_on_yellow " in stack["eval_command"] and not (lib / "kinematic" / "stack.npz").exists()
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -21,6 +21,7 @@ from parallel_skills import Skill, SkillSet
 from parallel_skills.evaluation import rollout_episodes
 from tasks.manipulation import layout as L
 from tasks.manipulation import skill_sets
+from tasks.manipulation.task_defs import canonical
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHIPPED = sorted(glob.glob(os.path.join(ROOT, "checkpoints", "*", "*.npz")))
@@ -99,9 +100,10 @@ def test_shipped_skill(path):
     assert meta["hidden"] == [128, 256, 128] and meta["min_std"] == 0.05  # NewSkillConfig defaults
     if meta["trained_with"] == "skills":  # a chain stage's new skill (training.chain -> training.ship)
         assert meta["command"].startswith("python -m training.chain ")
-        assert meta["ship_command"].startswith("python -m training.ship ") and f"--stage {stem}" in meta["ship_command"]
-        assert meta["training"]["chain_stage"] == stem and meta["training"]["env_steps"] > 0
-        assert meta["training"]["stage_command"].startswith(f"python -m training.run --task {stem} ")
+        stage = meta["training"]["chain_stage"]  # shipped under its full name (stack -> stack_green_on_yellow)
+        assert canonical(stage) == stem and meta["training"]["env_steps"] > 0
+        assert meta["ship_command"].startswith("python -m training.ship ") and f"--stage {stage}" in meta["ship_command"]
+        assert meta["training"]["stage_command"].startswith(f"python -m training.run --task {stage} ")
         from training.export import file_sha256
 
         assert meta["sha256"] == file_sha256(path)  # the chain's output, byte for byte
@@ -155,9 +157,16 @@ def test_many_useful_loads_from_the_library_and_stacks():
     assert float(jnp.max(jnp.abs(acts[0] - acts[1]))) > 0  # different seeds, different networks
 
 
+def _first_unshipped(task):
+    """The first skill of ``task``'s useful set that the kinematic library lacks."""
+    names = skill_sets.skill_names(task, "useful")
+    return next(n for n in names if not os.path.isfile(os.path.join(ROOT, "checkpoints", "kinematic", f"{n}.npz")))
+
+
 def test_skill_sources_fail_in_one_line(tmp_path):
-    with pytest.raises(ValueError, match=r"kinematic skill library: .*stack_green_on_yellow\.npz does not exist"):
-        skill_sets.load_skills(skill_sets.skill_names("pyramid", "useful"), "kinematic", "library")
+    missing = _first_unshipped("triple_stack")
+    with pytest.raises(ValueError, match=rf"kinematic skill library: .*{missing}\.npz does not exist"):
+        skill_sets.load_skills(skill_sets.skill_names("triple_stack", "useful"), "kinematic", "library")
     with pytest.raises(ValueError, match="seed 1 of 'reach_green', which only the neural library has"):
         skill_sets.load_skills(["reach_green.s1"], "kinematic", "scripted")
     with pytest.raises(ValueError, match="mujoco skill library: .*checkpoints/mjx/reach_green.npz does not exist"):
@@ -173,12 +182,12 @@ def test_training_run_library_source_errors(tmp_path, capsys):
 
     out = tmp_path / "run"
     with pytest.raises(SystemExit) as e:
-        main(["--task", "pyramid", "--skills", "useful", "--skill_source", "library", "--out", str(out)])
+        main(["--task", "triple_stack", "--skills", "useful", "--skill_source", "library", "--out", str(out)])
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("error: skill 'stack_green_on_yellow' is not in the kinematic "
-                                               "skill library")
-    assert "checkpoints/kinematic/stack_green_on_yellow.npz" in err[0]
+    missing = _first_unshipped("triple_stack")
+    assert len(err) == 1 and err[0].startswith(f"error: skill '{missing}' is not in the kinematic skill library")
+    assert f"checkpoints/kinematic/{missing}.npz" in err[0]
     with pytest.raises(SystemExit) as e:
         main(["--task", "lift", "--skills", "many_useful", "--out", str(out)])
     assert e.value.code == 2

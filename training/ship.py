@@ -3,8 +3,9 @@ library, lift X and stack X on Y, are outputs of SkillS runs, as in the paper's 
 
     python -m training.ship --chain runs/chain --stage lift_green
 
-Copies ``CHAIN/skills/STAGE.npz`` byte for byte to ``checkpoints/<library>/STAGE.npz`` (``library``
-= ``skill_sets.library_dir(physics)``), measures the shipped file with ``training.evaluate``
+Copies ``CHAIN/skills/STAGE.npz`` byte for byte to ``checkpoints/<library>/NAME.npz`` (``library``
+= ``skill_sets.library_dir(physics)``; NAME is the stage's full task name, as skill tables use it:
+``stack`` ships as ``stack_green_on_yellow``), measures the shipped file with ``training.evaluate``
 (``--episodes`` 64, ``--seed`` 0) and writes the library sidecar: sizes and network, the chain
 command and the stage's ``training.run`` command, the skills it was trained with, its env steps and
 training wall time (summed over resumes), and that success with the command that reproduces it.
@@ -62,8 +63,11 @@ def library_sidecar(meta: dict, record: dict, stage_record: dict, run_config: di
                     ship_command: str, wall_time_s) -> dict:
     """The library sidecar of a shipped chain skill (the fields every shipped skill has, see
     tests/test_skill_library.py, plus the chain's provenance)."""
+    from tasks.manipulation.task_defs import canonical
+
+    name = canonical(stage)
     return {
-        "name": stage, "task": stage, "domain": "manipulation", "physics": meta["physics"],
+        "name": name, "task": name, "domain": "manipulation", "physics": meta["physics"],
         "obs_size": meta["obs_size"], "action_size": meta["action_size"], "hidden": meta["hidden"],
         "min_std": run_config["train_config"]["new_skill"]["min_std"],
         "command": record["command"], "ship_command": ship_command, "seed": meta["seed"],
@@ -87,6 +91,7 @@ def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=
     from tasks.manipulation import skill_sets
     from training.chain import stage_training_wall_time
     from training.evaluate import evaluate_policy
+    from tasks.manipulation.task_defs import canonical
     from training.export import file_sha256
 
     record, stage_record, src = stage_files(chain, stage)
@@ -96,7 +101,8 @@ def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=
     library = skill_sets.library_dir(physics)
     bar = MIN_SUCCESS.get(library, DEFAULT_MIN_SUCCESS) if min_success is None else float(min_success)
     default_root = root is None
-    dst = skill_sets.library_path(physics, stage, root=root)
+    name = canonical(stage)  # the library names a stage's skill as skill tables do (stack -> stack_green_on_yellow)
+    dst = skill_sets.library_path(physics, name, root=root)
     dst_json = dst[:-4] + ".json"
     for path in (dst, dst_json):
         if os.path.exists(path):
@@ -114,14 +120,14 @@ def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=
 
     # The chain's file is measured where it is and shipped byte for byte (same SHA-256, which the
     # exports of later stages record for it).
-    result = evaluate_policy(stage, physics, src, episodes=episodes, seed=seed)
+    result = evaluate_policy(name, physics, src, episodes=episodes, seed=seed)
     success = float(result["success"].mean())
     ret = float(result["return"].mean())
     if success < bar:
         raise UsageError(f"stage {stage!r} succeeded in {success:.3f} of {episodes} episodes, below the "
                          f"{library} library's bar {bar}; not shipped")
-    policy = f"checkpoints/{library}/{stage}.npz" if default_root else dst
-    eval_command = (f"python -m training.evaluate --task {stage} --physics {physics} --policy {policy} "
+    policy = f"checkpoints/{library}/{name}.npz" if default_root else dst
+    eval_command = (f"python -m training.evaluate --task {name} --physics {physics} --policy {policy} "
                     f"--episodes {episodes} --seed {seed}")
     wall = stage_training_wall_time(stage_record, run_dir)
     side = library_sidecar(meta, record, stage_record, run_config, stage=stage, success=success, ret=ret,
@@ -149,7 +155,7 @@ def main(argv=None):
     command = " ".join(["python -m training.ship"] + argv)
     side = main_guard(lambda: ship(args.chain, args.stage, args.episodes, args.seed, args.min_success, args.root,
                                    ship_command=command))
-    print(f"shipped {args.stage}: success={side['success']:.4f} over {side['success_episodes']} episodes")
+    print(f"shipped {args.stage} as {side['name']}: success={side['success']:.4f} over {side['success_episodes']} episodes")
 
 
 if __name__ == "__main__":

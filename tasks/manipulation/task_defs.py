@@ -84,6 +84,8 @@ for _c in layout.CUBE_NAMES:
         if _d != _c:
             _register(_stack(_c, _d))
 
+# Short names of the paper's two main tasks: the same task definitions under a second name.
+ALIASES = {"lift": "lift_green", "stack": "stack_green_on_yellow"}
 _register(dataclasses.replace(TASKS["lift_green"], name="lift", description="Lift green (sparse)"))
 _register(
     dataclasses.replace(TASKS["stack_green_on_yellow"], name="stack", description="Stack green on yellow (sparse)")
@@ -152,6 +154,12 @@ _register(
         "Lift arm with closed fingers (dense); success: pinch z ≥ 0.18 with fingers closed",
     )
 )
+
+
+def canonical(name: str) -> str:
+    """The task's full name, as skill tables and libraries name its skill: ``stack`` ->
+    ``stack_green_on_yellow``; other names unchanged."""
+    return ALIASES.get(name, name)
 
 
 def names() -> list[str]:
