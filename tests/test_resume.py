@@ -193,3 +193,28 @@ def test_extending_a_finished_run_matches_a_run_of_the_larger_budget(uninterrupt
                                              f"--num_timesteps {20 * ITERATIONS}"}]
     with open(os.path.join(run_e, "export.json")) as f:
         assert json.load(f)["metadata"]["extensions"] == cfg["extensions"]
+
+
+def test_a_run_in_use_by_another_process_is_refused(uninterrupted, capsys):
+    """Two training.run processes on one directory would interleave checkpoints and metrics: the
+    second is refused (one line, exit 2) while the first holds DIR's lock, and nothing is changed."""
+    tmp, run_a = uninterrupted
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time; from training.run import lock_run_dir; lock_run_dir(sys.argv[1]); "
+                               "print('locked', flush=True); time.sleep(120)", run_a],
+        cwd=ROOT, env=dict(os.environ, PYTHONPATH=ROOT), stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with open(os.path.join(run_a, "config.json")) as f:
+            config = f.read()
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as e:
+            main(["--resume", "--out", run_a, "--num_timesteps", str(40 * ITERATIONS)])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert e.value.code == 2 and len(err) == 1 and "is in use by another training.run process" in err[0], err
+        with open(os.path.join(run_a, "config.json")) as f:
+            assert f.read() == config
+        assert os.path.exists(os.path.join(run_a, "export.json"))
+    finally:
+        holder.kill()
+        holder.wait()

@@ -379,6 +379,38 @@ def prepare_resume(args):
     return out, dict(run, num_timesteps=target), resolved, env
 
 
+# ----------------------------------------------------------------------------- one process per run
+
+_LOCKS: dict = {}  # run directory -> its locked file descriptor (held while training)
+
+
+def lock_run_dir(out) -> None:
+    """Lock the directory ``out`` exclusively (``flock``: released when the process ends, SIGKILL included),
+    so that a second ``training.run`` on the same directory is refused instead of interleaving its
+    checkpoints and metrics with the first's."""
+    try:
+        import fcntl
+    except ImportError:  # (not POSIX: no lock)
+        return
+    key = os.path.abspath(out)
+    if key in _LOCKS:
+        return
+    fd = os.open(out, os.O_RDONLY)  # the directory itself: nothing is written
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        raise UsageError(f"run directory {out} is in use by another training.run process; wait for it to end "
+                         "or stop it, then --resume") from None
+    _LOCKS[key] = fd
+
+
+def unlock_run_dir(out) -> None:
+    fd = _LOCKS.pop(os.path.abspath(out), None)
+    if fd is not None:
+        os.close(fd)
+
+
 # ----------------------------------------------------------------------------- extending
 
 # What a finished run writes (besides metrics.csv, events and checkpoints, which an extension continues).
@@ -492,9 +524,13 @@ def main(argv=None):
     args = build_parser().parse_args(argv)
     enable_compilation_cache()
     out, run, resolved, env = main_guard(lambda: prepare_resume(args) if args.resume else prepare_new(args, argv))
-    if args.resume:
-        extend_run(out, run, argv)
-    _train(out, run, resolved, env, resume=args.resume, video=args.video or bool(run.get("video")))
+    main_guard(lambda: lock_run_dir(out))
+    try:
+        if args.resume:
+            extend_run(out, run, argv)
+        _train(out, run, resolved, env, resume=args.resume, video=args.video or bool(run.get("video")))
+    finally:
+        unlock_run_dir(out)
 
 
 def skill_sources(skills, physics: str) -> list[dict]:
