@@ -171,9 +171,13 @@ def check_budgets(stages: list[str], args, out: str) -> None:
         cfg_path = os.path.join(out, task, "config.json")
         if not os.path.isfile(cfg_path):
             continue
-        with open(cfg_path) as f:
-            run = json.load(f)
-        budget, wanted = int(run["num_timesteps"]), stage_timesteps(task, args)
+        try:
+            with open(cfg_path) as f:
+                run = json.load(f)
+            budget = int(run["num_timesteps"])
+        except (OSError, ValueError, KeyError, TypeError):
+            raise UsageError(f"{cfg_path} is unreadable (the stage's training run); choose a new --out") from None
+        wanted = stage_timesteps(task, args)
         if wanted < budget:
             raise UsageError(f"stage {task} has a budget of {budget} env steps ({cfg_path}); the command asks for "
                              f"{wanted}: a chain's budgets can be raised, not lowered")
