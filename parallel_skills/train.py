@@ -71,9 +71,31 @@ CPU_DEFAULTS = dict(num_envs=32, replay_size=300_000, scheduler_spi=8.0, schedul
                     new_skill_spi=64.0, new_skill_crr_mode="indicator")
 
 
-def resolve(config: TrainConfig, backend: Optional[str] = None) -> tuple[TrainConfig, list[str]]:
+# The CPU recipe's learner fields: (learner, field) -> (CPU value, the paper's value).
+CPU_RECIPE = {
+    ("scheduler", "samples_per_insert"): (CPU_DEFAULTS["scheduler_spi"], SchedulerConfig.samples_per_insert),
+    ("scheduler", "policy_warmup_updates"): (CPU_DEFAULTS["scheduler_policy_warmup_updates"],
+                                             SchedulerConfig.policy_warmup_updates),
+    ("new_skill", "samples_per_insert"): (CPU_DEFAULTS["new_skill_spi"], NewSkillConfig.samples_per_insert),
+    ("new_skill", "crr_mode"): (CPU_DEFAULTS["new_skill_crr_mode"], NewSkillConfig.crr_mode),
+}
+
+
+def _show(value) -> str:
+    return f"{value:g}" if isinstance(value, (int, float)) else str(value)
+
+
+def resolve(config: TrainConfig, backend: Optional[str] = None,
+            given: Optional[Sequence[str]] = None) -> tuple[TrainConfig, list[str]]:
     """Fill device-dependent defaults. Returns the config and human-readable notes of what was
-    chosen automatically (to log)."""
+    chosen automatically (to log).
+
+    On a CPU, ``num_envs`` / ``replay_size`` left None get the CPU sizes, and the learners the CPU
+    recipe (``CPU_RECIPE``). ``given``: the dotted names of the fields the user set (``training.run``:
+    those of its config file, e.g. ``"new_skill.n_step"``): every recipe field not among them takes
+    the recipe. ``None`` (callers that build a config in code, and configs resolved already): a
+    learner config takes the recipe only when all its fields are the paper's, so a resolved config
+    is never changed."""
     backend = backend or jax.default_backend()
     notes: list[str] = []
     cfg = config
@@ -84,19 +106,17 @@ def resolve(config: TrainConfig, backend: Optional[str] = None) -> tuple[TrainCo
         if cfg.replay_size is None:
             cfg = dataclasses.replace(cfg, replay_size=CPU_DEFAULTS["replay_size"])
             notes.append(f"replay_size={cfg.replay_size}")
-        # Only a learner config left at the paper's defaults takes the CPU recipe.
-        if cfg.scheduler == SchedulerConfig():
-            cfg = dataclasses.replace(cfg, scheduler=dataclasses.replace(
-                cfg.scheduler, samples_per_insert=CPU_DEFAULTS["scheduler_spi"],
-                policy_warmup_updates=CPU_DEFAULTS["scheduler_policy_warmup_updates"]))
-            notes.append(f"scheduler samples_per_insert={CPU_DEFAULTS['scheduler_spi']} (paper 100), "
-                         f"policy_warmup_updates={CPU_DEFAULTS['scheduler_policy_warmup_updates']} (paper 0)")
-        if cfg.new_skill == NewSkillConfig():
-            cfg = dataclasses.replace(cfg, new_skill=dataclasses.replace(
-                cfg.new_skill, samples_per_insert=CPU_DEFAULTS["new_skill_spi"],
-                crr_mode=CPU_DEFAULTS["new_skill_crr_mode"]))
-            notes.append(f"new-skill samples_per_insert={CPU_DEFAULTS['new_skill_spi']} (paper 50), "
-                         f"crr_mode={CPU_DEFAULTS['new_skill_crr_mode']} (paper exp)")
+        given = None if given is None else set(given)
+        for learner, default in (("scheduler", SchedulerConfig()), ("new_skill", NewSkillConfig())):
+            sub = getattr(cfg, learner)
+            if given is None and sub != default:
+                continue
+            changes = {f: cpu for (name, f), (cpu, _) in CPU_RECIPE.items()
+                       if name == learner and (given is None or f"{learner}.{f}" not in given)}
+            if changes:
+                cfg = dataclasses.replace(cfg, **{learner: dataclasses.replace(sub, **changes)})
+                notes.append(f"{learner.replace('_', '-')} " + ", ".join(
+                    f"{f}={_show(v)} (paper {_show(CPU_RECIPE[(learner, f)][1])})" for f, v in changes.items()))
     else:
         if cfg.num_envs is None:
             cfg = dataclasses.replace(cfg, num_envs=4096)
@@ -487,6 +507,7 @@ def train(
     checkpoint_fn: Optional[Callable[[TrainingState, dict], None]] = None,
     checkpoint_every: Optional[int] = None,
     step_fn: Optional[Callable[[int], None]] = None,
+    auto_config: bool = True,
 ):
     """Train SkillS on ``environment`` (Brax env API) with frozen ``skills``.
 
@@ -494,6 +515,8 @@ def train(
     parameters, ``metrics`` the last evaluation and training metrics (Python floats / lists).
     ``progress_fn(env_steps, metrics)`` is called after every evaluation (Brax style);
     ``step_fn(env_steps)`` after every iteration (a progress bar's count; a host int, no device sync).
+    ``auto_config``: fill the device's defaults with ``resolve(config)``; False: train with ``config``
+    exactly (``training.run`` resolves it once, from what the user set, and records it).
 
     Checkpoints and exact resumption (``training.checkpointing``): ``checkpoint_fn(state,
     host_state)`` is called after the iteration in which ``env_steps`` crosses a multiple of
@@ -510,9 +533,12 @@ def train(
         if int(num_envs) < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs}")
         config = dataclasses.replace(config, num_envs=int(num_envs))
-    config, notes = resolve(config)
-    if notes:
-        log.warning("CPU backend: smaller defaults chosen automatically: %s", ", ".join(notes))
+    if auto_config:
+        config, notes = resolve(config)
+        if notes:
+            log.warning("CPU backend: smaller defaults chosen automatically: %s", ", ".join(notes))
+    elif config.num_envs is None or config.replay_size is None:
+        raise ValueError("auto_config=False needs a resolved config (num_envs and replay_size set): see resolve()")
     episode_length = int(episode_length or getattr(environment, "episode_length", 1000))
     for s in skills:
         s_obs = s.metadata.get("obs_size")

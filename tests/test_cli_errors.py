@@ -183,6 +183,19 @@ def fresh_run(ws):
     return out
 
 
+def test_config_file_fields_and_the_cpu_recipe(ws):
+    """A config file that sets one learner field keeps the CPU recipe for the others (config.json)."""
+    from training.run import build_parser, prepare_new
+
+    (ws / "nstep.json").write_text(json.dumps({"unroll_length": 5, "new_skill": {"n_step": 2}}))
+    out = ws / "nstep_run"
+    argv = ["--config", str(ws / "nstep.json"), "--num_timesteps", "100", "--out", str(out)]
+    prepare_new(build_parser().parse_args(argv), argv)
+    with open(out / "config.json") as f:
+        new_skill = json.load(f)["train_config"]["new_skill"]
+    assert new_skill["n_step"] == 2 and new_skill["samples_per_insert"] == 64.0 and new_skill["crr_mode"] == "indicator"
+
+
 def test_resume_without_checkpoint_and_conflicting_flags(ws, fresh_run, capsys):
     changed = ws / "changed.json"
     changed.write_text(json.dumps({"unroll_length": 7}))

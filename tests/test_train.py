@@ -172,6 +172,24 @@ def test_cpu_recipe_applies_only_to_learner_configs_left_at_paper_defaults():
     assert cfg.scheduler.samples_per_insert == CPU_DEFAULTS["scheduler_spi"]
     gpu, notes = resolve(TrainConfig(), backend="gpu")
     assert gpu.num_envs == 4096 and gpu.scheduler == SchedulerConfig() and gpu.new_skill == NewSkillConfig()
+    assert resolve(cfg, backend="cpu")[0] == cfg  # a resolved config is left as it is
+
+
+def test_cpu_recipe_fills_the_fields_a_config_file_leaves():
+    """training.run knows which fields its config file set (``given``): each recipe field it left
+    takes the CPU recipe, whatever else the file set; what it set stands, paper values included."""
+    from parallel_skills.train import CPU_DEFAULTS, resolve
+
+    mine = TrainConfig(scheduler=SchedulerConfig(samples_per_insert=100.0), new_skill=NewSkillConfig(n_step=3))
+    cfg, notes = resolve(mine, backend="cpu", given=["new_skill.n_step", "scheduler.samples_per_insert"])
+    assert cfg.new_skill.n_step == 3 and cfg.new_skill.samples_per_insert == CPU_DEFAULTS["new_skill_spi"]
+    assert cfg.new_skill.crr_mode == CPU_DEFAULTS["new_skill_crr_mode"]
+    assert cfg.scheduler.samples_per_insert == 100.0  # set (to the paper's value) in the file: kept
+    assert cfg.scheduler.policy_warmup_updates == CPU_DEFAULTS["scheduler_policy_warmup_updates"]
+    assert "scheduler policy_warmup_updates=1500 (paper 0)" in notes
+    assert "new-skill samples_per_insert=64 (paper 50), crr_mode=indicator (paper exp)" in notes
+    # Without ``given`` (a config built in code) a changed learner config is the user's: no recipe.
+    assert resolve(mine, backend="cpu")[0].new_skill == mine.new_skill
 
 
 def test_training_episode_stats_are_nan_when_no_episode_ended():

@@ -255,7 +255,7 @@ def prepare_new(args, argv):
 
     on_cpu = jax.default_backend() == "cpu"
     num_timesteps = args.num_timesteps or DEFAULT_TIMESTEPS["cpu" if on_cpu else "accelerator"]
-    resolved, notes = resolve(cfg)
+    resolved, notes = resolve(cfg, given=_dotted_names(file_data))  # (the recipe fills what the file leaves)
     if args.eval_every is not None:
         eval_every = args.eval_every
     elif "eval_every" in file_data:
@@ -281,6 +281,14 @@ def prepare_new(args, argv):
     with open(os.path.join(out, "config.json"), "w") as f:
         json.dump(run, f, indent=2, default=str)
     return out, run, resolved, env
+
+
+def _dotted_names(data: dict, prefix: str = "") -> list[str]:
+    """``{"a": 1, "new_skill": {"n_step": 3}}`` -> ``["a", "new_skill.n_step"]``."""
+    out = []
+    for k, v in data.items():
+        out += _dotted_names(v, f"{prefix}{k}.") if isinstance(v, dict) else [f"{prefix}{k}"]
+    return out
 
 
 def _train_config_from_json(data, where):
@@ -635,7 +643,7 @@ def _train(out, run, resolved, env, resume: bool, video: bool = False):
         make_policy, params, metrics = train(
             env, skills, num_timesteps=num_timesteps, seed=seed, config=resolved, progress_fn=progress,
             initial_state=initial_state, host_state=host_state, checkpoint_fn=checkpoint,
-            checkpoint_every=run["checkpoint_every"], step_fn=bar.advance)
+            checkpoint_every=run["checkpoint_every"], step_fn=bar.advance, auto_config=False)
     bar.close()
     tb.close()
     ckpt.close()
