@@ -153,7 +153,7 @@ class Progress:
         if self.steps > self.start_steps:
             text += f"  {rate:,.0f} steps/s  ETA {_duration((self.total - self.steps) / max(rate, 1e-9))}"
         else:
-            text += "  (compiling, then the first evaluation interval)"
+            text += "  (compiling; then the first iteration)"
         if self.success is not None:
             text += f"  new_skill success {self.success:.2f}"
         return text
