@@ -114,6 +114,9 @@ def _check_ship(tmp_path, capsys):
     try:
         main(base + ["--stage", "lift_green", "--min_success", "0"])
         main(base + ["--stage", "stack", "--min_success", "0"])  # the library's name: stack_green_on_yellow
+        # A ship killed between its two renames (the .npz in place, no sidecar) is finished by a rerun.
+        os.remove(lib / "kinematic" / "stack_green_on_yellow.json")
+        main(base + ["--stage", "stack", "--min_success", "0"])
         assert "shipped stack as stack_green_on_yellow" in capsys.readouterr().out
         for argv, needle in [(base + ["--stage", "lift_green", "--min_success", "0"], "already exists"),
                              (base + ["--stage", "lift_blue"], "has not finished in chain; finished stages: "

@@ -12,7 +12,8 @@ training wall time (summed over resumes), and that success with the command that
 
 Refused in one line (exit 2, nothing written): a stage the chain has not finished, a success
 below the library's bar (``--min_success``, default 0.8; 0.7 for the MJX scene, issue 4), or a
-destination that exists (remove it first to replace a shipped skill).
+destination that exists (remove it first to replace a shipped skill; a .npz of the same bytes without
+its sidecar, left by a ship killed between its two renames, is completed instead).
 """
 
 from __future__ import annotations
@@ -104,7 +105,10 @@ def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=
     name = canonical(stage)  # the library names a stage's skill as skill tables do (stack -> stack_green_on_yellow)
     dst = skill_sets.library_path(physics, name, root=root)
     dst_json = dst[:-4] + ".json"
-    for path in (dst, dst_json):
+    # A .npz without its sidecar and with the source's bytes is a ship killed between its two renames:
+    # finished by this call. Anything else that exists is never replaced.
+    orphan = os.path.exists(dst) and not os.path.exists(dst_json) and file_sha256(dst) == file_sha256(src)
+    for path in (dst_json,) if orphan else (dst, dst_json):
         if os.path.exists(path):
             raise UsageError(f"{path} already exists; remove it first to replace the shipped skill")
     run_dir = os.path.join(chain, stage)
