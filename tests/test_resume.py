@@ -164,31 +164,42 @@ def test_resume_without_replay_checkpoint(uninterrupted):
 
 
 def test_extending_a_finished_run_matches_a_run_of_the_larger_budget(uninterrupted):
-    """``--resume --num_timesteps N`` continues a finished run to N env steps: the same metrics rows
-    and final state as a run started with N (evaluations leave the training state unchanged), the
-    shorter run's outputs kept in before_extension_<budget>/."""
+    """``--resume --num_timesteps N`` continues a finished run to N env steps: the final state and
+    every evaluation of a run started with N (evaluations leave the training state unchanged), the
+    shorter run's outputs kept in before_extension_<budget>/. Its final evaluation (iteration 5, not
+    an evaluation iteration of the longer run) stays in metrics.csv as an extra row; the training
+    statistics of the next row start after it."""
     tmp, run_a = uninterrupted
     run_e = os.path.join(tmp, "e")
-    main(_args(tmp, run_e, iterations=ITERATIONS // 2))
+    short_iterations = 5
+    main(_args(tmp, run_e, iterations=short_iterations))
     short = {n: _npz(os.path.join(run_e, n)) for n in ("new_skill.npz", "export.npz")}
     main(["--resume", "--out", run_e, "--num_timesteps", str(20 * ITERATIONS)])
 
-    kept = os.path.join(run_e, f"before_extension_{20 * ITERATIONS // 2}")
+    kept = os.path.join(run_e, f"before_extension_{20 * short_iterations}")
     for name, arrays in short.items():
         _assert_same_arrays(_npz(os.path.join(kept, name)), arrays)
     assert sorted(os.listdir(kept)) == ["curves.png", "export.json", "export.npz", "new_skill.json",
                                         "new_skill.npz", "skill_usage.png"]
-    assert _rows(run_e) == _rows(run_a)
+    rows_a, rows_e = _rows(run_a), _rows(run_e)
+    extra = [r[0] for r in rows_e].index(str(20 * short_iterations))
+    assert [int(r[0]) for r in rows_e[1:]] == [60, 100, 120, 180, 240]
+    header = rows_a[0]
+    evals = [i for i, h in enumerate(header) if h == "env_steps" or h.startswith("eval/")]
+    rows_e = rows_e[:extra] + rows_e[extra + 1:]
+    assert [[r[i] for i in evals] for r in rows_e] == [[r[i] for i in evals] for r in rows_a]
+    assert rows_e[:extra] == rows_a[:extra] and rows_e[extra + 1:] == rows_a[extra + 1:]
     _assert_same_arrays(_npz(os.path.join(run_a, "export.npz")), _npz(os.path.join(run_e, "export.npz")))
     step_a, leaves_a, host_a = _final_state(run_a)
     step_e, leaves_e, host_e = _final_state(run_e)
+    assert host_e.pop("csv_rows") == host_a.pop("csv_rows") + 1  # the extra row
     assert step_a == step_e == ITERATIONS and host_a == host_e
     for x, y in zip(leaves_a, leaves_e):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     with open(os.path.join(run_e, "config.json")) as f:
         cfg = json.load(f)
     assert cfg["num_timesteps"] == 20 * ITERATIONS
-    assert cfg["extensions"] == [{"from": 20 * ITERATIONS // 2, "to": 20 * ITERATIONS,
+    assert cfg["extensions"] == [{"from": 20 * short_iterations, "to": 20 * ITERATIONS,
                                   "command": f"python -m training.run --resume --out {run_e} "
                                              f"--num_timesteps {20 * ITERATIONS}"}]
     with open(os.path.join(run_e, "export.json")) as f:

@@ -99,9 +99,9 @@ def _mismatch(item_dir: str, abstract) -> Optional[str]:
     orbax's metadata before restoring: a failed restore leaves orbax's read coroutines behind, which
     print tracebacks to stderr when they are collected."""
     import orbax.checkpoint as ocp
+    from etils import epath
 
-    md = ocp.StandardCheckpointer().metadata(item_dir)
-    stored = _leaf_specs(getattr(md, "item_metadata", md))
+    stored = _leaf_specs(ocp.StandardCheckpointHandler().metadata(epath.Path(item_dir)))
     wanted = _leaf_specs(abstract)
     for path in sorted(set(stored) | set(wanted)):
         if stored.get(path) != wanted.get(path):
