@@ -449,8 +449,8 @@ def extend_run(out, run, argv):
 
     Crash-safe in three idempotent steps: the finished run's outputs (``FINAL_OUTPUTS``) are copied
     to ``out/before_extension_<budget>/`` (a temporary directory renamed into place); config.json is
-    rewritten with the new budget and an ``extensions`` entry; the outputs are removed (the last
-    export.json first goes: until then a resume sees an unfinished extension and redoes the steps).
+    rewritten with the new budget and an ``extensions`` entry; the outputs are removed, export.json
+    last (until it goes, a resume sees an unfinished extension and redoes the steps).
     Training then continues from the latest checkpoint as an uninterrupted run of the larger budget
     would: the state at the old budget is the same (evaluations do not change it)."""
     import shutil
