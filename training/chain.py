@@ -260,8 +260,10 @@ def main(argv=None):
                                       run_command="python -m training.run " + " ".join(
                                           stage_argv(task, args, skill_dir, run_dir, False)))
         save_record()
+        took = (f"{wall:.0f} s" if not finished else
+                f"trained before this call: {stage_training_wall_time(record['stages'][task], run_dir) or 0:.0f} s")
         print(f"[chain] {task}: new skill success={result['success']:.4f} over {args.eval_episodes} episodes "
-              f"-> {result['skill']} ({wall:.0f} s)", flush=True)
+              f"-> {result['skill']} ({took})", flush=True)
     total = total_training_wall_time(record)
     summary = ", ".join("%s %.3f" % (t, record["stages"][t]["success"]) for t in stages)
     print(f"[chain] done: {summary}; "
