@@ -29,7 +29,8 @@ import subprocess
 import sys
 import time
 
-from training.cli import Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int
+from training.cli import (Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int,
+                          write_json_atomic)
 from training.run import exported_budget
 
 STAGES = ("lift_green", "lift_yellow", "lift_blue", "stack")
@@ -223,10 +224,7 @@ def main(argv=None):
     os.makedirs(skill_dir, exist_ok=True)
 
     def save_record():
-        tmp = record_path + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(record, f, indent=2)
-        os.replace(tmp, record_path)
+        write_json_atomic(record_path, record, indent=2)
 
     save_record()
     t_chain = time.perf_counter()

@@ -11,6 +11,17 @@ class UsageError(Exception):
     """Bad user input: reported as one line, exit code 2."""
 
 
+def write_json_atomic(path: str, data, **dump_kwargs) -> None:
+    """``json.dump(data)`` to ``path`` through a temporary file renamed into place (a kill leaves
+    the old file or the new one, never half of one)."""
+    import json
+
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump(data, f, **dump_kwargs)
+    os.replace(tmp, path)
+
+
 def fail(message: str) -> "None":
     print(f"error: {message}", file=sys.stderr)
     raise SystemExit(2)

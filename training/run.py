@@ -32,7 +32,8 @@ import os
 import sys
 import time
 
-from training.cli import Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int
+from training.cli import (Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int,
+                          write_json_atomic)
 from training.logging_utils import Progress, TensorBoardLogger, format_row
 
 # CPU: the README quickstart must end within 15 minutes on 2 cores (kinematic lift, seed 0: ≈ 0.4
@@ -476,10 +477,7 @@ def extend_run(out, run, argv):
         stored["num_timesteps"] = new
         stored.setdefault("extensions", []).append({"from": old, "to": new, "command": _command(argv)})
         run["extensions"] = stored["extensions"]
-        tmp = cfg_path + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(stored, f, indent=2, default=str)
-        os.replace(tmp, cfg_path)
+        write_json_atomic(cfg_path, stored, indent=2, default=str)
     for name in FINAL_OUTPUTS:
         if os.path.isfile(os.path.join(out, name)) and name != "export.json":
             os.remove(os.path.join(out, name))
