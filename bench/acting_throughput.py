@@ -15,7 +15,8 @@ import jax
 
 import tasks
 from parallel_skills import Skill, TrainConfig
-from parallel_skills.train import make_trainer, resolve
+from parallel_skills.config import resolve
+from parallel_skills.train import make_trainer
 from tasks.manipulation import scripted, skill_sets
 
 

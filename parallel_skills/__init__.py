@@ -20,7 +20,8 @@ _PUBLIC = {
     "SchedulerConfig": "parallel_skills.config",
     "Skill": "parallel_skills.skills",
     "SkillSet": "parallel_skills.skills",
-    "TrainConfig": "parallel_skills.train",
+    "TrainConfig": "parallel_skills.config",
+    "Transition": "parallel_skills.replay",
     "make_trainer": "parallel_skills.train",
 }
 

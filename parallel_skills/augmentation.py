@@ -1,4 +1,4 @@
-"""Scheduler data augmentation (paper §4.4, App. A.2 Eq. 7; DESIGN "Augmentation").
+"""Scheduler data augmentation (paper §4.4, App. A.2 Eq. 7; docs/design.md "Augmentation").
 
 A skill execution of length k* that is a multiple of k_min = min(K) is also labelled as
 if the scheduler had chosen the same skill with k_min repeatedly. Only the labels
@@ -15,8 +15,9 @@ k* mod k_min == 0 produces a duplicate.
 
 from __future__ import annotations
 
-from typing import Dict, Sequence, Tuple
+from typing import Sequence, Tuple
 
+import jax
 import jax.numpy as jnp
 
 
@@ -75,28 +76,20 @@ def augment_labels_indexed(
     return k_idx_aug, c_aug, is_decision_aug, applies
 
 
-def augment_batch(batch: Dict[str, jnp.ndarray], skill_lengths: Sequence[int]) -> Dict[str, jnp.ndarray]:
-    """The duplicate of a scheduler batch (keys as ``scheduler_learner_update`` expects).
+def augment_batch(batch, skill_lengths: Sequence[int]):
+    """The duplicate of a scheduler batch (a ``replay.Transition`` [B]).
 
-    Relabels ``k_idx``, ``c``, ``is_decision`` and multiplies ``weight`` (default 1) by
-    ``applies``; other keys are shared. Rows where augmentation does not apply keep their
-    original labels (including the original ``is_decision``) with weight 0.
+    Relabels ``k_idx``, ``c``, ``is_decision`` and multiplies ``weight`` by ``applies``; other
+    fields are shared. Rows where augmentation does not apply keep their original labels
+    (including the original ``is_decision``) with weight 0.
     """
-    k_idx_aug, c_aug, is_decision_aug, applies = augment_labels_indexed(
-        batch["k_idx"], batch["c"], skill_lengths)
-    weight = batch.get("weight", jnp.ones(batch["c"].shape, jnp.float32))
-    out = dict(batch)
-    out["k_idx"] = k_idx_aug
-    out["c"] = c_aug
-    out["is_decision"] = jnp.where(applies, is_decision_aug, batch["is_decision"])
-    out["weight"] = weight * applies.astype(weight.dtype)
-    return out
+    k_idx_aug, c_aug, is_decision_aug, applies = augment_labels_indexed(batch.k_idx, batch.c, skill_lengths)
+    return batch.replace(k_idx=k_idx_aug, c=c_aug,
+                         is_decision=jnp.where(applies, is_decision_aug, batch.is_decision),
+                         weight=batch.weight * applies.astype(batch.weight.dtype))
 
 
-def with_augmentation(batch: Dict[str, jnp.ndarray], skill_lengths: Sequence[int]) -> Dict[str, jnp.ndarray]:
+def with_augmentation(batch, skill_lengths: Sequence[int]):
     """Original batch [B] concatenated with its duplicate -> batch [2B] (originals first)."""
     aug = augment_batch(batch, skill_lengths)
-    orig = dict(batch)
-    if "weight" not in orig:
-        orig["weight"] = jnp.ones(batch["c"].shape, jnp.float32)
-    return {key: jnp.concatenate([orig[key], aug[key]], axis=0) for key in orig}
+    return jax.tree.map(lambda a, b: jnp.concatenate([a, b], axis=0), batch, aug)

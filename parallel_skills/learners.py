@@ -19,8 +19,12 @@ New skill (CRR, Wang et al. 2020):
   * Optional MPO mix (mpo_alpha < 1): actions ~ *target* policy at s (π_old), Q from the
     *online* critic (stop-gradient).
 Acting uses the *online* policy params (``state.policy_params``) through
-``make_scheduler_apply`` / ``make_new_skill_apply`` (or the shape-inferring
-``scheduler_logits`` / ``new_skill_distribution``).
+``make_scheduler_apply`` / ``make_new_skill_apply``.
+
+Each update reads as targets (NamedTuple, computed from the target networks, no gradient) →
+loss (online networks; aux NamedTuple) → one optimiser step → stats (a dict of scalars), as
+Acme's MPO learner. Batches are ``replay.Transition`` rows; both learners share one state type,
+``LearnerState``.
 
 Target networks are hard copies every ``target_actor_period`` / ``target_critic_period``
 learner steps (``optax.periodic_update``; after update n (1-based), copied when n % period == 0).
@@ -28,7 +32,7 @@ learner steps (``optax.periodic_update``; after update n (1-based), copied when 
 
 from __future__ import annotations
 
-from typing import Callable, Dict, Tuple
+from typing import Callable, Dict, NamedTuple, Tuple
 
 import flax
 import jax
@@ -44,8 +48,9 @@ from parallel_skills.networks import (GaussianPolicy, QCritic, QEnsemble, Schedu
                                       all_pairs, categorical_entropy, gaussian_log_prob,
                                       joint_log_probs, sample_action)
 
+from parallel_skills.replay import Transition
+
 Params = Dict
-Batch = Dict[str, jnp.ndarray]
 
 _MIN_LOG_DUAL = -18.0  # Acme clips log temperature / log alpha from below.
 
@@ -57,8 +62,7 @@ def _optimizer(learning_rate: float, clip: float) -> optax.GradientTransformatio
 def _learner_step(state, grads, config, update_duals: bool):
     """Apply one gradient step to policy, critic (and duals), then the periodic hard target copies.
 
-    Shared by both learners: ``state`` is a Scheduler- or NewSkillLearnerState (same fields),
-    ``grads`` = (policy, critic, dual) gradients. Duals are kept ≥ exp-floor via ``_MIN_LOG_DUAL``.
+    Shared by both learners (``LearnerState``); ``grads`` = (policy, critic, dual) gradients. Duals are kept ≥ exp-floor via ``_MIN_LOG_DUAL``.
     """
     g_pol, g_crit, g_dual = grads
     opt = _optimizer(config.learning_rate, config.grad_clip_norm)
@@ -85,24 +89,44 @@ def _learner_step(state, grads, config, update_duals: bool):
 
 
 def updates_per_iteration(samples_per_insert: float, num_inserted: int, batch_size: int) -> int:
-    """Learner updates per collect iteration (DESIGN "Defaults"):
+    """Learner updates per collect iteration (docs/design.md "Defaults"):
     round(spi · inserted / batch_size), at least 1."""
     return max(1, int(round(samples_per_insert * num_inserted / batch_size)))
 
 
-# =============================================================================== scheduler
-
 @flax.struct.dataclass
-class SchedulerLearnerState:
+class LearnerState:
+    """A learner's networks, their targets, optimiser states and MPO duals (both learners)."""
+
     policy_params: Params
     critic_params: Params
     target_policy_params: Params
     target_critic_params: Params
     policy_opt_state: optax.OptState
     critic_opt_state: optax.OptState
-    dual_params: Dict[str, jnp.ndarray]  # {"log_temperature": [], "log_alpha": []}
+    # Scheduler: {"log_temperature", "log_alpha"}; new skill: {"log_temperature", "log_alpha_mean",
+    # "log_alpha_stddev"} (only used when mpo_alpha < 1).
+    dual_params: Dict[str, jnp.ndarray]
     dual_opt_state: optax.OptState
     steps: jnp.ndarray  # int32 scalar: learner updates done.
+
+
+def _learner_init(key, policy, critic, policy_inputs, critic_inputs, dual_params, config) -> LearnerState:
+    """Initial learner state (targets = copies of the online networks)."""
+    k_pol, k_crit = jax.random.split(key)
+    policy_params = policy.init(k_pol, *policy_inputs)
+    critic_params = critic.init(k_crit, *critic_inputs)
+    opt = _optimizer(config.learning_rate, config.grad_clip_norm)
+    dual_opt = optax.adam(config.dual_learning_rate)
+    return LearnerState(
+        policy_params=policy_params, critic_params=critic_params,
+        target_policy_params=policy_params, target_critic_params=critic_params,
+        policy_opt_state=opt.init(policy_params), critic_opt_state=opt.init(critic_params),
+        dual_params=dual_params, dual_opt_state=dual_opt.init(dual_params),
+        steps=jnp.zeros((), jnp.int32))
+
+
+# =============================================================================== scheduler
 
 
 def scheduler_networks(num_skills_total: int, config: SchedulerConfig) -> Tuple[SchedulerPolicy, SchedulerCritic]:
@@ -123,149 +147,145 @@ def make_scheduler_apply(num_skills_total: int, config: SchedulerConfig
     return policy.apply
 
 
-def _torso_hidden(torso_params: Params) -> Tuple[int, ...]:
-    names = sorted((k for k in torso_params if k.startswith("dense_")), key=lambda k: int(k.split("_")[1]))
-    return tuple(int(torso_params[k]["kernel"].shape[-1]) for k in names)
-
-
-def scheduler_logits(params: Params, obs: jnp.ndarray) -> Tuple[jnp.ndarray, jnp.ndarray]:
-    """Scheduler policy apply with sizes inferred from ``params`` (the variables dict
-    ``{"params": ...}`` of ``state.policy_params``). obs [..., O] -> (logits_i, logits_k)."""
-    p = params["params"]
-    module = SchedulerPolicy(num_skills=int(p["head_i"]["bias"].shape[0]),
-                             num_lengths=int(p["head_k"]["bias"].shape[0]),
-                             hidden=_torso_hidden(p["torso"]))
-    return module.apply(params, obs)
-
-
 def scheduler_learner_init(key: jax.Array, obs_size: int, num_skills_total: int,
-                           config: SchedulerConfig) -> SchedulerLearnerState:
+                           config: SchedulerConfig) -> LearnerState:
     """Initial scheduler learner state (targets = copies of the online networks)."""
     policy, critic = scheduler_networks(num_skills_total, config)
-    k_pol, k_crit = jax.random.split(key)
     obs = jnp.zeros((1, obs_size), jnp.float32)
     idx = jnp.zeros((1, 1), jnp.int32)
-    policy_params = policy.init(k_pol, obs)
-    critic_params = critic.init(k_crit, obs, idx + 1, idx, idx)
     dual_params = {"log_temperature": jnp.asarray(config.init_log_temperature, jnp.float32),
                    "log_alpha": jnp.asarray(config.init_log_alpha, jnp.float32)}
-    opt = _optimizer(config.learning_rate, config.grad_clip_norm)
-    dual_opt = optax.adam(config.dual_learning_rate)
-    return SchedulerLearnerState(
-        policy_params=policy_params, critic_params=critic_params,
-        target_policy_params=policy_params, target_critic_params=critic_params,
-        policy_opt_state=opt.init(policy_params), critic_opt_state=opt.init(critic_params),
-        dual_params=dual_params, dual_opt_state=dual_opt.init(dual_params),
-        steps=jnp.zeros((), jnp.int32))
+    return _learner_init(key, policy, critic, (obs,), (obs, idx + 1, idx, idx), dual_params, config)
 
 
-def scheduler_learner_update(state: SchedulerLearnerState, batch: Batch, key: jax.Array,
-                             config: SchedulerConfig) -> Tuple[SchedulerLearnerState, Dict[str, jnp.ndarray]]:
-    """One HCMPO update (paper Eq. 3 critic, Eq. 4 policy improvement).
+class SchedulerTargets(NamedTuple):
+    """What the scheduler's loss regresses to, from the target networks (no gradient)."""
 
-    batch (all [B, ...]): obs [B, O], next_obs [B, O], reward [B], discount [B] (0 terminal,
-    1 otherwise incl. truncation), skill [B] int (i), k_idx [B] int, c [B] int,
-    is_decision [B] bool, weight [B] float (optional, default 1; rows with weight 0 are
-    ignored everywhere). Augmented duplicates are just extra rows (see
-    ``augmentation.with_augmentation``).
+    y: jax.Array  # [B] critic target of Eq. 3
+    log_prior: jax.Array  # [B, P] log π_old(z | s) of every pair z = (i, k): the target policy
 
-    Critic: 0.5·(Q(s, c, i, k) − y)² averaged over weighted rows. Policy and duals: only on
-    rows with weight·is_decision > 0 (all zero if none). ``key`` is unused (the expectations
-    are exact) and kept for interface symmetry.
-    """
-    del key
-    policy_params = state.policy_params
-    num_skills = int(policy_params["params"]["head_i"]["bias"].shape[0])
-    policy, critic = scheduler_networks(num_skills, config)
-    pair_i, pair_k, pair_kv = (jnp.asarray(a) for a in all_pairs(num_skills, config.skill_lengths))
-    num_pairs = pair_i.shape[0]
 
-    obs = batch["obs"].astype(jnp.float32)
-    next_obs = batch["next_obs"].astype(jnp.float32)
-    reward = batch["reward"].astype(jnp.float32)
-    discount = batch["discount"].astype(jnp.float32)
-    skill = batch["skill"].astype(jnp.int32)
-    k_idx = batch["k_idx"].astype(jnp.int32)
-    c = batch["c"].astype(jnp.int32)
-    b = obs.shape[0]
-    weight = batch.get("weight", jnp.ones((b,), jnp.float32)).astype(jnp.float32)
-    dmask = weight * batch["is_decision"].astype(jnp.float32)
+class SchedulerAux(NamedTuple):
+    critic_loss: jax.Array
+    q: jax.Array  # [B] Q(s, c, i, k) of the stored labels
+    temperature: jax.Array
+    alpha: jax.Array
+    kl: jax.Array
+    policy_loss: jax.Array
+    logits_i: jax.Array
+    logits_k: jax.Array
 
-    def tile(x):
-        return jnp.broadcast_to(x[None, :], (b, num_pairs))
 
-    # ---- Policy evaluation target (Eq. 3): target policy + target critic at s'.
-    t_li_next, t_lk_next = policy.apply(state.target_policy_params, next_obs)
+def _scheduler_pairs(num_skills: int, config: SchedulerConfig):
+    """(pair_i, pair_k, pair_kv) [P]: every (skill, length index, length value) pair."""
+    return tuple(jnp.asarray(a) for a in all_pairs(num_skills, config.skill_lengths))
+
+
+def _tile(x, b: int):
+    return jnp.broadcast_to(x[None, :], (b, x.shape[0]))
+
+
+def scheduler_targets(state: LearnerState, batch: Transition, networks, pairs,
+                      config: SchedulerConfig) -> SchedulerTargets:
+    """Eq. 3's target with the target policy and critic at s' (the expectation over (i', k')
+    exact), and π_old = the target policy at s."""
+    policy, critic = networks
+    pair_i, pair_k, pair_kv = pairs
+    num_pairs, b = pair_i.shape[0], batch.obs.shape[0]
+    c = batch.c
+    t_li_next, t_lk_next = policy.apply(state.target_policy_params, batch.next_obs)
     probs_next = jnp.exp(joint_log_probs(t_li_next, t_lk_next))  # [B, P]
     q_next = critic.apply(
-        state.target_critic_params, next_obs,
-        jnp.concatenate([tile(pair_kv), jnp.maximum(c - 1, 1)[:, None]], axis=1),
-        jnp.concatenate([tile(pair_i), skill[:, None]], axis=1),
-        jnp.concatenate([tile(pair_k), k_idx[:, None]], axis=1))  # [B, P + 1]
-    y = critic_target(reward, discount, c, q_next[:, num_pairs], q_next[:, :num_pairs], probs_next,
+        state.target_critic_params, batch.next_obs,
+        jnp.concatenate([_tile(pair_kv, b), jnp.maximum(c - 1, 1)[:, None]], axis=1),
+        jnp.concatenate([_tile(pair_i, b), batch.skill[:, None]], axis=1),
+        jnp.concatenate([_tile(pair_k, b), batch.k_idx[:, None]], axis=1))  # [B, P + 1]
+    y = critic_target(batch.reward, batch.discount, c, q_next[:, num_pairs], q_next[:, :num_pairs], probs_next,
                       config.discount)
-
-    # ---- π_old = target policy at s.
-    t_li, t_lk = policy.apply(state.target_policy_params, obs)
+    t_li, t_lk = policy.apply(state.target_policy_params, batch.obs)
     log_prior = jax.lax.stop_gradient(joint_log_probs(t_li, t_lk))  # [B, P]
+    return SchedulerTargets(y=y, log_prior=log_prior)
 
-    def loss_fn(policy_params, critic_params, dual_params):
-        q_all = critic.apply(
-            critic_params, obs,
-            jnp.concatenate([c[:, None], tile(pair_kv)], axis=1),
-            jnp.concatenate([skill[:, None], tile(pair_i)], axis=1),
-            jnp.concatenate([k_idx[:, None], tile(pair_k)], axis=1))  # [B, 1 + P]
-        q = q_all[:, 0]
-        critic_loss = masked_mean(0.5 * jnp.square(q - y), weight)
-        q_fresh = jax.lax.stop_gradient(q_all[:, 1:])  # Q(s, c=k, i, k), all pairs
-        temperature = positive(dual_params["log_temperature"])
-        alpha = positive(dual_params["log_alpha"])
-        weights = e_step_weights(q_fresh, log_prior, temperature)
-        loss_temperature = temperature_dual_loss(temperature, q_fresh, log_prior, config.epsilon, dmask)
-        li, lk = policy.apply(policy_params, obs)
-        log_probs = joint_log_probs(li, lk)
-        loss_m, kl = m_step_loss(log_probs, weights, log_prior, alpha, config.epsilon_kl, dmask)
-        policy_loss = (loss_m + loss_temperature) * (state.steps >= config.policy_warmup_updates)
-        aux = dict(critic_loss=critic_loss, q=q, temperature=temperature, alpha=alpha, kl=kl,
-                   policy_loss=policy_loss, li=li, lk=lk)
-        return critic_loss + policy_loss, aux
 
-    grads, aux = jax.grad(loss_fn, argnums=(0, 1, 2), has_aux=True)(
-        state.policy_params, state.critic_params, state.dual_params)
+def scheduler_loss(params, steps, batch: Transition, targets: SchedulerTargets, networks, pairs,
+                   config: SchedulerConfig) -> Tuple[jax.Array, SchedulerAux]:
+    """Critic: 0.5·(Q(s, c, i, k) − y)² over weighted rows. Policy (Eq. 4, only on weighted
+    decision rows): E-step weights q(z|s) ∝ π_old·exp(Q(s, c=k, z)/η) with the temperature dual,
+    M-step cross-entropy with the KL(π_old ‖ π) trust region; zero during the policy warm-up.
+    ``params`` = (policy, critic, dual)."""
+    policy_params, critic_params, dual_params = params
+    policy, critic = networks
+    pair_i, pair_k, pair_kv = pairs
+    b = batch.obs.shape[0]
+    dmask = batch.weight * batch.is_decision.astype(jnp.float32)
+    q_all = critic.apply(
+        critic_params, batch.obs,
+        jnp.concatenate([batch.c[:, None], _tile(pair_kv, b)], axis=1),
+        jnp.concatenate([batch.skill[:, None], _tile(pair_i, b)], axis=1),
+        jnp.concatenate([batch.k_idx[:, None], _tile(pair_k, b)], axis=1))  # [B, 1 + P]
+    q = q_all[:, 0]
+    critic_loss = masked_mean(0.5 * jnp.square(q - targets.y), batch.weight)
+    q_fresh = jax.lax.stop_gradient(q_all[:, 1:])  # Q(s, c=k, i, k), all pairs
+    temperature = positive(dual_params["log_temperature"])
+    alpha = positive(dual_params["log_alpha"])
+    weights = e_step_weights(q_fresh, targets.log_prior, temperature)
+    loss_temperature = temperature_dual_loss(temperature, q_fresh, targets.log_prior, config.epsilon, dmask)
+    li, lk = policy.apply(policy_params, batch.obs)
+    log_probs = joint_log_probs(li, lk)
+    loss_m, kl = m_step_loss(log_probs, weights, targets.log_prior, alpha, config.epsilon_kl, dmask)
+    policy_loss = (loss_m + loss_temperature) * (steps >= config.policy_warmup_updates)
+    aux = SchedulerAux(critic_loss=critic_loss, q=q, temperature=temperature, alpha=alpha, kl=kl,
+                       policy_loss=policy_loss, logits_i=li, logits_k=lk)
+    return critic_loss + policy_loss, aux
 
-    new_state = _learner_step(state, grads, config, update_duals=True)
 
-    q = aux["q"]
-    metrics = dict(
-        critic_loss=aux["critic_loss"],
+def scheduler_stats(aux: SchedulerAux, batch: Transition) -> Dict[str, jax.Array]:
+    """Scalars to log of one scheduler update."""
+    weight = batch.weight
+    dmask = weight * batch.is_decision.astype(jnp.float32)
+    q = aux.q
+    return dict(
+        critic_loss=aux.critic_loss,
         q_mean=masked_mean(q, weight),
         q_max=jnp.max(jnp.where(weight > 0, q, jnp.min(q))),
-        temperature=aux["temperature"],
-        alpha=aux["alpha"],
-        kl=aux["kl"],
-        policy_loss=aux["policy_loss"],
-        policy_entropy_i=masked_mean(categorical_entropy(aux["li"]), weight),
-        policy_entropy_k=masked_mean(categorical_entropy(aux["lk"]), weight),
+        temperature=aux.temperature,
+        alpha=aux.alpha,
+        kl=aux.kl,
+        policy_loss=aux.policy_loss,
+        policy_entropy_i=masked_mean(categorical_entropy(aux.logits_i), weight),
+        policy_entropy_k=masked_mean(categorical_entropy(aux.logits_k), weight),
         decision_fraction=jnp.sum(dmask) / jnp.maximum(jnp.sum(weight), 1.0),
     )
-    return new_state, metrics
+
+
+def scheduler_learner_update(state: LearnerState, batch: Transition, key: jax.Array,
+                             config: SchedulerConfig) -> Tuple[LearnerState, Dict[str, jax.Array]]:
+    """One HCMPO update (paper Eq. 3 critic, Eq. 4 policy improvement) on ``batch`` [B]
+    (``replay.Transition``: obs, next_obs, reward, discount, skill, k_idx, c, is_decision, weight;
+    rows with weight 0 are ignored everywhere). Augmented duplicates are just extra rows
+    (``augmentation.with_augmentation``). ``key`` is unused (the expectations are exact) and kept
+    for interface symmetry."""
+    del key
+    num_skills = int(state.policy_params["params"]["head_i"]["bias"].shape[0])
+    networks = scheduler_networks(num_skills, config)
+    pairs = _scheduler_pairs(num_skills, config)
+    batch = _as_float32(batch)
+    targets = scheduler_targets(state, batch, networks, pairs, config)
+    grads, aux = jax.grad(lambda p: scheduler_loss(p, state.steps, batch, targets, networks, pairs, config),
+                          has_aux=True)((state.policy_params, state.critic_params, state.dual_params))
+    return _learner_step(state, grads, config, update_duals=True), scheduler_stats(aux, batch)
+
+
+def _as_float32(batch: Transition) -> Transition:
+    """Observations, actions, rewards, discounts and weights as float32; labels as int32."""
+    f, i = jnp.float32, jnp.int32
+    return batch.replace(obs=batch.obs.astype(f), action=batch.action.astype(f), reward=batch.reward.astype(f),
+                         discount=batch.discount.astype(f), next_obs=batch.next_obs.astype(f),
+                         skill=batch.skill.astype(i), k_idx=batch.k_idx.astype(i), c=batch.c.astype(i),
+                         weight=batch.weight.astype(f))
 
 
 # =============================================================================== new skill
-
-@flax.struct.dataclass
-class NewSkillLearnerState:
-    policy_params: Params
-    critic_params: Params
-    target_policy_params: Params
-    target_critic_params: Params
-    policy_opt_state: optax.OptState
-    critic_opt_state: optax.OptState
-    # {"log_temperature", "log_alpha_mean", "log_alpha_stddev"}: only used when mpo_alpha < 1.
-    dual_params: Dict[str, jnp.ndarray]
-    dual_opt_state: optax.OptState
-    steps: jnp.ndarray
-
 
 def new_skill_networks(action_size: int, config: NewSkillConfig):
     """The flax modules (policy, critic) the new-skill learner uses for ``config``: the critic is a
@@ -292,126 +312,130 @@ def make_new_skill_apply(action_size: int, config: NewSkillConfig
     return policy.apply
 
 
-def new_skill_distribution(params: Params, obs: jnp.ndarray, min_std: float = NewSkillConfig.min_std
-                           ) -> Tuple[jnp.ndarray, jnp.ndarray]:
-    """New-skill policy apply with sizes inferred from ``params`` (``{"params": ...}``).
-    ``min_std`` must match the config used for training (default 0.05).
-    obs [..., O] -> (mean [..., A], std [..., A])."""
-    p = params["params"]
-    module = GaussianPolicy(action_size=int(p["head"]["bias"].shape[0]) // 2,
-                            hidden=_torso_hidden(p["torso"]), min_std=min_std)
-    return module.apply(params, obs)
-
-
 def new_skill_learner_init(key: jax.Array, obs_size: int, action_size: int,
-                           config: NewSkillConfig) -> NewSkillLearnerState:
+                           config: NewSkillConfig) -> LearnerState:
     """Initial new-skill learner state (targets = copies of the online networks)."""
     policy, critic = new_skill_networks(action_size, config)
-    k_pol, k_crit = jax.random.split(key)
     obs = jnp.zeros((1, obs_size), jnp.float32)
     act = jnp.zeros((1, action_size), jnp.float32)
-    policy_params = policy.init(k_pol, obs)
-    critic_params = critic.init(k_crit, obs, act)
     dual_params = {"log_temperature": jnp.asarray(config.mpo_init_log_temperature, jnp.float32),
                    "log_alpha_mean": jnp.asarray(config.mpo_init_log_alpha_mean, jnp.float32),
                    "log_alpha_stddev": jnp.asarray(config.mpo_init_log_alpha_stddev, jnp.float32)}
-    opt = _optimizer(config.learning_rate, config.grad_clip_norm)
-    dual_opt = optax.adam(config.dual_learning_rate)
-    return NewSkillLearnerState(
-        policy_params=policy_params, critic_params=critic_params,
-        target_policy_params=policy_params, target_critic_params=critic_params,
-        policy_opt_state=opt.init(policy_params), critic_opt_state=opt.init(critic_params),
-        dual_params=dual_params, dual_opt_state=dual_opt.init(dual_params),
-        steps=jnp.zeros((), jnp.int32))
+    return _learner_init(key, policy, critic, (obs,), (obs, act), dual_params, config)
 
 
-def new_skill_learner_update(state: NewSkillLearnerState, batch: Batch, key: jax.Array,
-                             config: NewSkillConfig) -> Tuple[NewSkillLearnerState, Dict[str, jnp.ndarray]]:
-    """One CRR update (± Gaussian MPO with weight 1 − mpo_alpha).
+class NewSkillTargets(NamedTuple):
+    """From the target networks (no gradient)."""
 
-    batch: obs [B, O], action [B, A], reward [B], discount [B] (0 terminal, 1 otherwise incl.
-    truncation), next_obs [B, O], optional weight [B] (default 1).
+    y: jax.Array  # [B] TD target r + γ·d·mean_j min_e Q'_e(s', a'_j), a'_j ~ π_target(.|s')
+    mpo_mean: jax.Array  # [B, A] π_old = target policy at s (MPO mix only, else [0])
+    mpo_std: jax.Array  # [B, A]
+    mpo_actions: jax.Array  # [B, n_mpo, A] samples of π_old (MPO mix only)
 
-    Critics (E = num_critics): Σ_e 0.5·(Q_e(s, a) − y)², y = r + γ·d·mean_j min_e Q'_e(s', a'_j),
-    a'_j ~ π_target(.|s') (clipped double Q); CRR advantages use min_e Q_e.
-    Policy: α·CRR + (1 − α)·MPO (pure CRR when mpo_alpha == 1, decided statically).
-    """
-    obs = batch["obs"].astype(jnp.float32)
-    action = batch["action"].astype(jnp.float32)
-    next_obs = batch["next_obs"].astype(jnp.float32)
-    reward = batch["reward"].astype(jnp.float32)
-    discount = batch["discount"].astype(jnp.float32)
-    b, a_size = action.shape
-    weight = batch.get("weight", jnp.ones((b,), jnp.float32)).astype(jnp.float32)
-    policy, critic = new_skill_networks(a_size, config)
+
+class NewSkillAux(NamedTuple):
+    critic_loss: jax.Array
+    q: jax.Array  # [B] min_e Q_e(s, a) of the stored actions
+    advantage: jax.Array  # [B] CRR advantage
+    crr_weight: jax.Array  # [B] f(A)
+    std: jax.Array  # [B, A] the policy's std at s
+    policy_loss: jax.Array
+    mpo: Dict[str, jax.Array]  # mpo_kl_mean, mpo_kl_std, mpo_temperature (MPO mix only)
+
+
+def _tile_obs(x, n: int):
+    return jnp.broadcast_to(x[:, None, :], (x.shape[0], n, x.shape[-1]))
+
+
+def _sample_n(mean, std, n: int, key):
+    b, a = mean.shape
+    return sample_action(jnp.broadcast_to(mean[:, None], (b, n, a)), jnp.broadcast_to(std[:, None], (b, n, a)), key)
+
+
+def new_skill_targets(state: LearnerState, batch: Transition, networks, key_next, key_mpo,
+                      config: NewSkillConfig) -> NewSkillTargets:
+    """TD target with the target policy and the target critics (clipped double Q: their minimum);
+    with the MPO mix, samples of π_old = the target policy at s."""
+    policy, critic = networks
+    j = config.num_action_samples
+    t_mean_next, t_std_next = policy.apply(state.target_policy_params, batch.next_obs)
+    a_next = _sample_n(t_mean_next, t_std_next, j, key_next)
+    q_next = jnp.min(critic_values(critic, state.target_critic_params, _tile_obs(batch.next_obs, j), a_next),
+                     axis=-1)  # [B, J]
+    y = td_target(batch.reward, batch.discount, q_next, config.discount)
+    if config.mpo_alpha < 1.0:
+        t_mean, t_std = policy.apply(state.target_policy_params, batch.obs)
+        a_mpo = _sample_n(t_mean, t_std, config.mpo_num_samples, key_mpo)
+    else:
+        t_mean = t_std = a_mpo = jnp.zeros((0,))
+    return NewSkillTargets(y=y, mpo_mean=t_mean, mpo_std=t_std, mpo_actions=a_mpo)
+
+
+def new_skill_loss(params, batch: Transition, targets: NewSkillTargets, networks, key_crr,
+                   config: NewSkillConfig) -> Tuple[jax.Array, NewSkillAux]:
+    """Critics: Σ_e 0.5·(Q_e(s, a) − y)² over weighted rows. Policy: CRR −f(A)·log π(a|s),
+    A = min_e Q_e(s, a) − mean_j min_e Q_e(s, a_j), a_j ~ π(.|s); with mpo_alpha < 1,
+    α·CRR + (1 − α)·Gaussian MPO. ``params`` = (policy, critic, dual)."""
+    policy_params, critic_params, dual_params = params
+    policy, critic = networks
     j = config.num_action_samples
     use_mpo = config.mpo_alpha < 1.0
-    k_next, k_crr, k_mpo = jax.random.split(key, 3)
-
-    def tile_obs(x, n):
-        return jnp.broadcast_to(x[:, None, :], (b, n, x.shape[-1]))
-
-    # ---- TD target with the target policy and target critic.
-    t_mean_next, t_std_next = policy.apply(state.target_policy_params, next_obs)
-    a_next = sample_action(jnp.broadcast_to(t_mean_next[:, None], (b, j, a_size)),
-                           jnp.broadcast_to(t_std_next[:, None], (b, j, a_size)), k_next)
-    # Clipped double Q: the minimum over the target critics.
-    q_next = jnp.min(critic_values(critic, state.target_critic_params, tile_obs(next_obs, j), a_next), axis=-1)  # [B, J]
-    y = td_target(reward, discount, q_next, config.discount)
-
-    # ---- MPO samples from π_old = target policy at s.
+    n_mpo = config.mpo_num_samples if use_mpo else 0
+    obs, action, weight = batch.obs, batch.action, batch.weight
+    mean, std = policy.apply(policy_params, obs)
+    a_j = jax.lax.stop_gradient(_sample_n(mean, std, j, key_crr))
+    actions = jnp.concatenate([action[:, None], a_j] + ([targets.mpo_actions] if use_mpo else []),
+                              axis=1)  # [B, 1 + J (+ n_mpo), A]
+    q_ens = critic_values(critic, critic_params, _tile_obs(obs, 1 + j + n_mpo), actions)  # [B, 1 + J (+ n_mpo), E]
+    q = q_ens[:, 0]  # [B, E]: every critic regresses on the same target
+    critic_loss = masked_mean(jnp.sum(0.5 * jnp.square(q - targets.y[:, None]), axis=-1), weight)
+    q_all = jnp.min(q_ens, axis=-1)  # advantages from the clipped (minimum) estimate
+    q_sg = jax.lax.stop_gradient(q_all)
+    advantage = crr_advantage(q_sg[:, 0], q_sg[:, 1:1 + j])
+    w_crr = crr_weights(advantage, config.crr_mode, config.crr_beta, config.crr_clip)
+    loss_crr = crr_policy_loss(gaussian_log_prob(mean, std, action), w_crr, weight)
+    mpo_stats: Dict[str, jax.Array] = {}
     if use_mpo:
-        n_mpo = config.mpo_num_samples
-        t_mean, t_std = policy.apply(state.target_policy_params, obs)
-        a_mpo = sample_action(jnp.broadcast_to(t_mean[:, None], (b, n_mpo, a_size)),
-                              jnp.broadcast_to(t_std[:, None], (b, n_mpo, a_size)), k_mpo)
+        loss_mpo, mpo_stats = gaussian_mpo_loss(
+            mean, std, targets.mpo_mean, targets.mpo_std, targets.mpo_actions, q_sg[:, 1 + j:],
+            positive(dual_params["log_temperature"]), positive(dual_params["log_alpha_mean"]),
+            positive(dual_params["log_alpha_stddev"]), config.mpo_epsilon,
+            config.mpo_epsilon_mean, config.mpo_epsilon_stddev, weight)
+        policy_loss = config.mpo_alpha * loss_crr + (1.0 - config.mpo_alpha) * loss_mpo
     else:
-        n_mpo = 0
+        policy_loss = loss_crr
+    aux = NewSkillAux(critic_loss=critic_loss, q=q_all[:, 0], advantage=advantage, crr_weight=w_crr, std=std,
+                      policy_loss=policy_loss, mpo=mpo_stats)
+    return critic_loss + policy_loss, aux
 
-    def loss_fn(policy_params, critic_params, dual_params):
-        mean, std = policy.apply(policy_params, obs)
-        a_j = jax.lax.stop_gradient(sample_action(
-            jnp.broadcast_to(mean[:, None], (b, j, a_size)),
-            jnp.broadcast_to(std[:, None], (b, j, a_size)), k_crr))
-        actions = [action[:, None], a_j] + ([a_mpo] if use_mpo else [])
-        actions = jnp.concatenate(actions, axis=1)  # [B, 1 + J (+ n_mpo), A]
-        q_ens = critic_values(critic, critic_params, tile_obs(obs, 1 + j + n_mpo), actions)  # [B, 1 + J (+ n_mpo), E]
-        q = q_ens[:, 0]  # [B, E]: every critic regresses on the same target
-        critic_loss = masked_mean(jnp.sum(0.5 * jnp.square(q - y[:, None]), axis=-1), weight)
-        q_all = jnp.min(q_ens, axis=-1)  # advantages from the clipped (minimum) estimate
-        q_sg = jax.lax.stop_gradient(q_all)
-        advantage = crr_advantage(q_sg[:, 0], q_sg[:, 1:1 + j])
-        w_crr = crr_weights(advantage, config.crr_mode, config.crr_beta, config.crr_clip)
-        log_prob = gaussian_log_prob(mean, std, action)
-        loss_crr = crr_policy_loss(log_prob, w_crr, weight)
-        aux = dict(critic_loss=critic_loss, q=q_all[:, 0], advantage=advantage, w_crr=w_crr, std=std)
-        if use_mpo:
-            loss_mpo, stats = gaussian_mpo_loss(
-                mean, std, t_mean, t_std, a_mpo, q_sg[:, 1 + j:],
-                positive(dual_params["log_temperature"]), positive(dual_params["log_alpha_mean"]),
-                positive(dual_params["log_alpha_stddev"]), config.mpo_epsilon,
-                config.mpo_epsilon_mean, config.mpo_epsilon_stddev, weight)
-            policy_loss = config.mpo_alpha * loss_crr + (1.0 - config.mpo_alpha) * loss_mpo
-            aux.update(stats)
-        else:
-            policy_loss = loss_crr
-        aux["policy_loss"] = policy_loss
-        return critic_loss + policy_loss, aux
 
-    grads, aux = jax.grad(loss_fn, argnums=(0, 1, 2), has_aux=True)(
-        state.policy_params, state.critic_params, state.dual_params)
-
-    new_state = _learner_step(state, grads, config, update_duals=use_mpo)
-
-    metrics = dict(
-        critic_loss=aux["critic_loss"],
-        q_mean=masked_mean(aux["q"], weight),
-        crr_weight_mean=masked_mean(aux["w_crr"], weight),
-        policy_log_std_mean=jnp.mean(jnp.log(aux["std"])),
-        advantage_mean=masked_mean(aux["advantage"], weight),
-        policy_loss=aux["policy_loss"],
+def new_skill_stats(aux: NewSkillAux, batch: Transition) -> Dict[str, jax.Array]:
+    """Scalars to log of one new-skill update."""
+    weight = batch.weight
+    stats = dict(
+        critic_loss=aux.critic_loss,
+        q_mean=masked_mean(aux.q, weight),
+        crr_weight_mean=masked_mean(aux.crr_weight, weight),
+        policy_log_std_mean=jnp.mean(jnp.log(aux.std)),
+        advantage_mean=masked_mean(aux.advantage, weight),
+        policy_loss=aux.policy_loss,
     )
-    if use_mpo:
-        for name in ("mpo_kl_mean", "mpo_kl_std", "mpo_temperature"):
-            metrics[name] = aux[name]
-    return new_state, metrics
+    for name in ("mpo_kl_mean", "mpo_kl_std", "mpo_temperature"):
+        if name in aux.mpo:
+            stats[name] = aux.mpo[name]
+    return stats
+
+
+def new_skill_learner_update(state: LearnerState, batch: Transition, key: jax.Array,
+                             config: NewSkillConfig) -> Tuple[LearnerState, Dict[str, jax.Array]]:
+    """One CRR update (± Gaussian MPO with weight 1 − mpo_alpha) on ``batch`` [B]
+    (``replay.Transition``: obs, action, reward, discount, next_obs, weight; rows with weight 0
+    are ignored). Critics (E = num_critics) regress on one target; clipped double Q for E > 1."""
+    batch = _as_float32(batch)
+    networks = new_skill_networks(batch.action.shape[-1], config)
+    k_next, k_crr, k_mpo = jax.random.split(key, 3)
+    targets = new_skill_targets(state, batch, networks, k_next, k_mpo, config)
+    grads, aux = jax.grad(lambda p: new_skill_loss(p, batch, targets, networks, k_crr, config),
+                          has_aux=True)((state.policy_params, state.critic_params, state.dual_params))
+    new_state = _learner_step(state, grads, config, update_duals=config.mpo_alpha < 1.0)
+    return new_state, new_skill_stats(aux, batch)

@@ -1,5 +1,5 @@
 """n-step TD targets for the new skill's critic (paper App. B.3: the learner trains on
-trajectories of length 10; DESIGN "New skill").
+trajectories of length 10; docs/design.md "New skill").
 
 With 1-step TD the new skill's critic learns a sparse reward only by bootstrapping through its
 own, usually wrong, values: on stack, where the reward starts tens of steps after the gripper
@@ -23,15 +23,13 @@ from typing import Dict
 
 import jax.numpy as jnp
 
-NSTEP_KEYS = ("nstep_reward", "nstep_discount", "nstep_next_obs", "nstep_weight")
-
-
-def nstep_fields(window: Dict[str, jnp.ndarray], n: int, gamma: float) -> Dict[str, jnp.ndarray]:
+def nstep_fields(window, n: int, gamma: float) -> Dict[str, jnp.ndarray]:
     """n-step returns of the first T = W − n + 1 steps of a window of W consecutive steps per env.
 
-    window: reward [W, B], discount [W, B] (0 at termination, else 1), next_obs [W, B, O],
-    done [W, B] (the episode ended at this step: termination, truncation or a non-finite step),
-    weight [W, B] (0 for steps that must not be learnt from).
+    window (a ``replay.PendingStep``, or anything with these attributes): reward [W, B], discount
+    [W, B] (0 at termination, else 1), next_obs [W, B, O], done [W, B] (the episode ended at this
+    step: termination, truncation or a non-finite step), weight [W, B] (0 for steps that must not
+    be learnt from).
 
     Returns, for t < T (each [T, B] or [T, B, O]):
       nstep_reward   R_t = Σ_{j<m} γ^j r_{t+j}
@@ -42,23 +40,23 @@ def nstep_fields(window: Dict[str, jnp.ndarray], n: int, gamma: float) -> Dict[s
     with m = min(n, steps to the end of t's episode, counting the ending step).
     """
     n = int(n)
-    w = window["reward"].shape[0]
+    w = window.reward.shape[0]
     t = w - n + 1
     if n < 1 or t < 1:
         raise ValueError(f"a window of {w} steps has no complete {n}-step return")
 
     def at(key, j):
-        return window[key][j:j + t].astype(jnp.float32)
+        return getattr(window, key)[j:j + t].astype(jnp.float32)
 
     ret = at("reward", 0)
     disc = at("discount", 0)
-    next_obs = window["next_obs"][0:t]
+    next_obs = window.next_obs[0:t]
     weight = at("weight", 0)
     alive = 1.0 - at("done", 0)  # step t + j belongs to t's episode
     for j in range(1, n):
         ret = ret + alive * (gamma ** j) * at("reward", j)
         disc = jnp.where(alive > 0, (gamma ** j) * at("discount", j), disc)
-        next_obs = jnp.where(alive[..., None] > 0, window["next_obs"][j:j + t], next_obs)
+        next_obs = jnp.where(alive[..., None] > 0, window.next_obs[j:j + t], next_obs)
         weight = jnp.where(alive > 0, weight * at("weight", j), weight)
         alive = alive * (1.0 - at("done", j))
     return {"nstep_reward": ret, "nstep_discount": disc, "nstep_next_obs": next_obs, "nstep_weight": weight}

@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from parallel_skills.normalization import CLIP
 from parallel_skills.numpy_policy import read_npz_json
 
 Params = Any
@@ -63,7 +64,7 @@ class Skill:
         net = networks.GaussianPolicy(action_size=action_size, hidden=tuple(hidden))
 
         def apply(p, obs, key):
-            x = jnp.clip((obs - p["obs_mean"]) / p["obs_std"], -10.0, 10.0)
+            x = jnp.clip((obs - p["obs_mean"]) / p["obs_std"], -CLIP, CLIP)
             mean, _ = net.apply(p["policy"], x)
             return mean
 

@@ -1,6 +1,7 @@
 import numpy as np
 import jax.numpy as jnp
 
+from parallel_skills.replay import Transition
 from parallel_skills.augmentation import (augment_batch, augment_labels, augment_labels_indexed,
                                           with_augmentation)
 
@@ -50,11 +51,12 @@ def test_indexed_and_batch():
     np.testing.assert_array_equal(c_aug, [10, 1, 15, 1, 10])
     np.testing.assert_array_equal(dec, [True, False, True, False, True])
     np.testing.assert_array_equal(applies, [True, True, False, True, False])
-    batch = dict(k_idx=k_idx, c=c, is_decision=jnp.array([True, False, True, False, True]),
-                 skill=jnp.arange(5), weight=jnp.ones(5))
+    z = jnp.zeros(5)
+    batch = Transition.batch(obs=z[:, None], reward=z, discount=z, next_obs=z[:, None], k_idx=k_idx, c=c,
+                             is_decision=jnp.array([True, False, True, False, True]), skill=jnp.arange(5))
     aug = augment_batch(batch, K)
-    np.testing.assert_array_equal(aug["weight"], [1, 1, 0, 1, 0])
-    np.testing.assert_array_equal(aug["skill"], np.arange(5))
+    np.testing.assert_array_equal(aug.weight, [1, 1, 0, 1, 0])
+    np.testing.assert_array_equal(aug.skill, np.arange(5))
     both = with_augmentation(batch, K)
-    assert both["c"].shape == (10,)
-    np.testing.assert_array_equal(both["c"], [20, 11, 15, 21, 10, 10, 1, 15, 1, 10])
+    assert both.c.shape == (10,)
+    np.testing.assert_array_equal(both.c, [20, 11, 15, 21, 10, 10, 1, 15, 1, 10])

@@ -7,9 +7,10 @@ import pytest
 
 from parallel_skills.augmentation import with_augmentation
 from parallel_skills.config import NewSkillConfig, SchedulerConfig
-from parallel_skills.learners import (make_new_skill_apply, make_scheduler_apply, new_skill_distribution,
-                                      new_skill_learner_init, new_skill_learner_update, scheduler_learner_init,
-                                      scheduler_learner_update, scheduler_logits, updates_per_iteration)
+from parallel_skills.learners import (make_new_skill_apply, make_scheduler_apply, new_skill_learner_init,
+                                      new_skill_learner_update, scheduler_learner_init, scheduler_learner_update,
+                                      updates_per_iteration)
+from parallel_skills.replay import Transition
 
 O, A, N1, K, B = 6, 2, 3, (2, 4), 16
 SCFG = SchedulerConfig(skill_lengths=K, hidden=(32, 32), critic_head_hidden=(16,), learning_rate=1e-3,
@@ -25,17 +26,19 @@ def _scheduler_batch(key, all_decisions=None):
     k_idx = jax.random.randint(ks[0], (B,), 0, len(K))
     c = jnp.minimum(jax.random.randint(ks[1], (B,), 1, 5), jnp.asarray(K)[k_idx])
     is_decision = c == jnp.asarray(K)[k_idx]
-    return dict(obs=jax.random.normal(ks[2], (B, O)), next_obs=jax.random.normal(ks[3], (B, O)),
-                reward=jax.random.uniform(ks[4], (B,)), discount=(jnp.arange(B) % 5 != 0).astype(jnp.float32),
-                skill=jax.random.randint(ks[5], (B,), 0, N1), k_idx=k_idx.astype(jnp.int32),
-                c=c.astype(jnp.int32), is_decision=is_decision, weight=jnp.ones(B))
+    return Transition.batch(obs=jax.random.normal(ks[2], (B, O)), next_obs=jax.random.normal(ks[3], (B, O)),
+                            reward=jax.random.uniform(ks[4], (B,)),
+                            discount=(jnp.arange(B) % 5 != 0).astype(jnp.float32),
+                            skill=jax.random.randint(ks[5], (B,), 0, N1), k_idx=k_idx.astype(jnp.int32),
+                            c=c.astype(jnp.int32), is_decision=is_decision, weight=jnp.ones(B))
 
 
 def _new_skill_batch(key):
     ks = jax.random.split(key, 4)
-    return dict(obs=jax.random.normal(ks[0], (B, O)), action=jnp.clip(jax.random.normal(ks[1], (B, A)), -1, 1),
-                reward=jax.random.uniform(ks[2], (B,)), discount=jnp.ones(B),
-                next_obs=jax.random.normal(ks[3], (B, O)))
+    return Transition.batch(obs=jax.random.normal(ks[0], (B, O)),
+                            action=jnp.clip(jax.random.normal(ks[1], (B, A)), -1, 1),
+                            reward=jax.random.uniform(ks[2], (B,)), discount=jnp.ones(B),
+                            next_obs=jax.random.normal(ks[3], (B, O)))
 
 
 def _scan_updates(update, config, n):
@@ -68,18 +71,15 @@ def test_scheduler_init_probs_and_apply():
     li, lk = apply(state.policy_params, obs)
     np.testing.assert_allclose(jax.nn.softmax(lk)[:, -1], 0.95, rtol=1e-5)
     np.testing.assert_allclose(jax.nn.softmax(li), 1 / 3, rtol=1e-5)
-    li2, lk2 = scheduler_logits(state.policy_params, obs)
-    np.testing.assert_allclose(li, li2)
-    np.testing.assert_allclose(lk, lk2)
 
 
 def test_scheduler_updates_finite_and_critic_loss_decreases(sched_run):
     state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, SCFG)
     base = _scheduler_batch(jax.random.PRNGKey(1))
-    assert 0 < int(base["is_decision"].sum()) < B
+    assert 0 < int(base.is_decision.sum()) < B
     batch = with_augmentation(base, K)  # [2B]: originals + duplicates (weight 0 where not applicable)
-    assert batch["obs"].shape == (2 * B, O)
-    assert 0 < float(batch["weight"][B:].sum()) < B
+    assert batch.obs.shape == (2 * B, O)
+    assert 0 < float(batch.weight[B:].sum()) < B
     new_state, metrics = sched_run(state, batch, jax.random.PRNGKey(2))
     expected = {"critic_loss", "q_mean", "q_max", "temperature", "alpha", "kl", "policy_entropy_i",
                 "policy_entropy_k", "decision_fraction", "policy_loss"}
@@ -88,7 +88,7 @@ def test_scheduler_updates_finite_and_critic_loss_decreases(sched_run):
     loss = np.asarray(metrics["critic_loss"])
     assert loss[-5:].mean() < 0.5 * loss[:5].mean(), loss
     assert int(new_state.steps) == 50
-    w, d = np.asarray(batch["weight"]), np.asarray(batch["is_decision"])
+    w, d = np.asarray(batch.weight), np.asarray(batch.is_decision)
     np.testing.assert_allclose(metrics["decision_fraction"][0], (w * d).sum() / w.sum(), rtol=1e-6)
     # Targets were hard-copied at step 50 (period 5).
     for a, b in zip(jax.tree_util.tree_leaves(new_state.target_critic_params),
@@ -99,7 +99,7 @@ def test_scheduler_updates_finite_and_critic_loss_decreases(sched_run):
 def test_scheduler_no_decision_rows_gives_zero_policy_loss(sched_run):
     state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, SCFG)
     batch = with_augmentation(_scheduler_batch(jax.random.PRNGKey(1)), K)
-    batch["weight"] = jnp.asarray(jnp.where(batch["is_decision"], 0.0, batch["weight"]), jnp.float32)
+    batch = batch.replace(weight=jnp.asarray(jnp.where(batch.is_decision, 0.0, batch.weight), jnp.float32))
     new_state, metrics = sched_run(state, batch, jax.random.PRNGKey(2))
     np.testing.assert_array_equal(metrics["policy_loss"], 0.0)
     np.testing.assert_array_equal(metrics["decision_fraction"], 0.0)
@@ -116,23 +116,20 @@ def test_scheduler_policy_moves_towards_best_pair(sched_run):
     """Rewards only for skill 2: after updates on decision states, π(i=2) rises from 1/3."""
     state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, SCFG)
     base = _scheduler_batch(jax.random.PRNGKey(3))
-    base["reward"] = (base["skill"] == 2).astype(jnp.float32)
-    base["is_decision"] = jnp.ones(B, bool)
-    base["c"] = jnp.asarray(K, jnp.int32)[base["k_idx"]]
+    base = base.replace(reward=(base.skill == 2).astype(jnp.float32), is_decision=jnp.ones(B, bool),
+                        c=jnp.asarray(K, jnp.int32)[base.k_idx])
     batch = with_augmentation(base, K)
     new_state, _ = sched_run(state, batch, jax.random.PRNGKey(4))
-    li, _ = scheduler_logits(new_state.policy_params, base["obs"])
+    li, _ = make_scheduler_apply(N1, SCFG)(new_state.policy_params, base.obs)
     assert float(jax.nn.softmax(li)[:, 2].mean()) > 0.4
 
 
 def test_new_skill_init_apply_and_updates(newskill_run):
     state = new_skill_learner_init(jax.random.PRNGKey(0), O, A, NCFG)
     batch = _new_skill_batch(jax.random.PRNGKey(1))
-    mean, std = make_new_skill_apply(A, NCFG)(state.policy_params, batch["obs"])
-    mean2, std2 = new_skill_distribution(state.policy_params, batch["obs"])
-    assert mean.shape == (B, A)
-    np.testing.assert_allclose(mean, mean2)
-    np.testing.assert_allclose(std, std2)
+    apply = make_new_skill_apply(A, NCFG)
+    mean, std = apply(state.policy_params, batch.obs)
+    assert mean.shape == (B, A) and std.shape == (B, A)
     new_state, metrics = newskill_run(state, batch, jax.random.PRNGKey(2))
     assert {"critic_loss", "q_mean", "crr_weight_mean", "policy_log_std_mean", "advantage_mean"} <= set(metrics)
     assert _finite(metrics) and _finite(new_state)
@@ -140,9 +137,9 @@ def test_new_skill_init_apply_and_updates(newskill_run):
     assert loss[-5:].mean() < 0.5 * loss[:5].mean(), loss
     # CRR increases the likelihood of the batch actions on average.
     from parallel_skills.networks import gaussian_log_prob
-    m1, s1 = new_skill_distribution(new_state.policy_params, batch["obs"])
-    assert float(gaussian_log_prob(m1, s1, batch["action"]).mean()) > float(
-        gaussian_log_prob(mean, std, batch["action"]).mean())
+    m1, s1 = apply(new_state.policy_params, batch.obs)
+    assert float(gaussian_log_prob(m1, s1, batch.action).mean()) > float(
+        gaussian_log_prob(mean, std, batch.action).mean())
 
 
 def test_new_skill_td_target_is_the_minimum_over_critics():
@@ -156,12 +153,12 @@ def test_new_skill_td_target_is_the_minimum_over_critics():
     target = jax.tree_util.tree_map(lambda x: x, state.target_critic_params)
     target["params"]["critics"]["head"]["bias"] = bias.at[1].add(50.0)
     state = state.replace(target_critic_params=target)
-    batch = dict(_new_skill_batch(jax.random.PRNGKey(1)), reward=jnp.zeros(B))
+    batch = _new_skill_batch(jax.random.PRNGKey(1)).replace(reward=jnp.zeros(B))
     new_state, metrics = _scan_updates(new_skill_learner_update, cfg, 200)(state, batch, jax.random.PRNGKey(2))
     from parallel_skills.learners import new_skill_networks
 
     _, critic = new_skill_networks(A, cfg)
-    q = np.asarray(critic.apply(new_state.critic_params, batch["obs"], batch["action"]))  # [B, 2]
+    q = np.asarray(critic.apply(new_state.critic_params, batch.obs, batch.action))  # [B, 2]
     assert q.shape == (B, 2)
     assert np.abs(q).max() < 2.0, q  # both near 0.5·Q'_0 (small), far from 25 or 50
 

@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from flax import struct
 
 import tasks
 from parallel_skills import NewSkillConfig, SchedulerConfig, Skill, TrainConfig
@@ -15,6 +16,21 @@ from parallel_skills.train import make_trainer
 from tasks.manipulation import scripted
 
 GAMMA = 0.9
+
+
+@struct.dataclass
+class Window:
+    """The fields ``nstep_fields`` reads (a ``replay.PendingStep`` has them among others)."""
+
+    reward: jax.Array
+    discount: jax.Array
+    next_obs: jax.Array
+    done: jax.Array
+    weight: jax.Array
+
+
+def _fields(window, n, gamma):
+    return jax.jit(nstep_fields, static_argnums=(1, 2))(Window(**window), n, gamma)
 
 
 def _reference(window, n, gamma):
@@ -55,8 +71,7 @@ def _random_window(rng, w, b, o=3):
 @pytest.mark.parametrize("n", [1, 2, 5])
 def test_nstep_fields_match_a_plain_loop(n):
     window = _random_window(np.random.default_rng(n), w=12 + n - 1, b=6)
-    got = jax.device_get(jax.jit(nstep_fields, static_argnums=(1, 2))(
-        {k: jnp.asarray(v) for k, v in window.items()}, n, GAMMA))
+    got = jax.device_get(_fields({k: jnp.asarray(v) for k, v in window.items()}, n, GAMMA))
     want = _reference(window, n, GAMMA)
     for k in want:
         np.testing.assert_allclose(got[k], want[k], rtol=1e-5, atol=1e-6, err_msg=k)
@@ -70,7 +85,7 @@ def test_nstep_return_stops_at_termination_and_bootstraps_after_truncation():
     z = np.zeros((n, 1), np.float32)
     base = dict(reward=np.array([[1.0], [2.0], [4.0], [8.0]], np.float32), discount=z + 1, weight=z + 1,
                 next_obs=np.arange(n, dtype=np.float32).reshape(n, 1, 1), done=np.zeros((n, 1), bool))
-    f = jax.jit(nstep_fields, static_argnums=(1, 2))
+    f = _fields
     full = f(base, n, 0.5)  # no episode end: 1 + 1 + 1 + 1, bootstrap γ^4 from s_4
     assert float(full["nstep_reward"][0, 0]) == 4.0
     assert float(full["nstep_discount"][0, 0]) * 0.5 == 0.5 ** 4
@@ -99,12 +114,12 @@ def test_collector_inserts_nstep_transitions_late_and_across_unrolls():
     trajs = []
     for u in range(3):
         state, traj, stats = collect(state, jax.random.PRNGKey(u))
-        trajs.append(jax.device_get(dict(traj, done=stats["done"])))
+        trajs.append(jax.device_get(dict(vars(traj), done=stats.done)))
     stream = {k: np.concatenate([tr[k] for tr in trajs]) for k in trajs[0]}  # [3T, B, ...]
     want = _reference(stream, n, GAMMA)  # steps 0 .. 3T − n
     # Replay rows: T·B per unroll, flattened (t, b); the first n − 1 rows of each env are placeholders.
     rows = jax.device_get(state.replay.experience)
-    got = {k: v[0, :3 * t * b].reshape((3 * t, b) + v.shape[2:]) for k, v in rows.items()}
+    got = {k: v[0, :3 * t * b].reshape((3 * t, b) + v.shape[2:]) for k, v in vars(rows).items()}
     np.testing.assert_array_equal(got["nstep_weight"][:n - 1], 0.0)
     np.testing.assert_array_equal(got["weight"][:n - 1], 0.0)
     for k in want:
@@ -113,7 +128,7 @@ def test_collector_inserts_nstep_transitions_late_and_across_unrolls():
         np.testing.assert_array_equal(got[k][n - 1:], stream[k][:3 * t - n + 1], err_msg=k)
     assert stream["done"][6].all() and stream["done"][13].all()  # episode ends inside the stream
     # The pending steps are the last n − 1 collected ones.
-    np.testing.assert_array_equal(jax.device_get(state.pending["obs"]), stream["obs"][-(n - 1):])
+    np.testing.assert_array_equal(jax.device_get(state.pending.obs), stream["obs"][-(n - 1):])
 
 
 def test_nstep_learner_iteration_runs_and_one_step_keeps_the_state_layout():
@@ -133,4 +148,4 @@ def test_nstep_learner_iteration_runs_and_one_step_keeps_the_state_layout():
     assert np.isfinite(m["new_skill/critic_loss"]) and m["new_skill/critic_loss"] > 0
     one = make_trainer(env, skills, dataclasses.replace(cfg, new_skill=dataclasses.replace(cfg.new_skill, n_step=1)))
     abstract = jax.eval_shape(one.init, jax.random.PRNGKey(0))
-    assert abstract.pending is None and "nstep_reward" not in abstract.replay.experience
+    assert abstract.pending is None and not hasattr(abstract.replay.experience, "nstep_reward")

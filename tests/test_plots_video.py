@@ -23,7 +23,7 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 def _run_ends(i, dec, done):
     """skill_run_ends over a sequence [T, B] from a fresh reset; returns per-step counts [T, B, N]."""
-    from parallel_skills.train import skill_run_ends
+    from parallel_skills.acting import skill_run_ends
 
     T, B = i.shape
     i_prev, first_prev, out = jnp.zeros(B, jnp.int32), jnp.ones(B, bool), []
@@ -106,10 +106,10 @@ def test_acting_step_counts_skill_runs():
 
     def unroll(key):
         def body(a, k):
-            a, tr, st = trainer.act(a, sched, new, normalization.init(2), k)
-            return a, (tr["skill"], st["done"], st["skill_runs"])
+            a, tr, st = trainer.actor.step(a, sched, new, normalization.init(2), k)
+            return a, (tr.skill, st.done, st.skill_runs)
 
-        return jax.lax.scan(body, trainer.reset_actor(k3), jax.random.split(key, 12))[1]
+        return jax.lax.scan(body, trainer.actor.reset(k3), jax.random.split(key, 12))[1]
 
     i, done, runs = (np.asarray(x) for x in jax.jit(unroll)(jax.random.PRNGKey(1)))
     assert runs.shape == (12, 3, 3) and done.any() and len(np.unique(i)) == 3

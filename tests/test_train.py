@@ -34,7 +34,7 @@ def small_trainer():
 def test_acting_counters_across_auto_reset(small_trainer):
     env, trainer, init, _ = small_trainer
     state = init(jax.random.PRNGKey(0))
-    act = jax.jit(trainer.act)
+    act = jax.jit(trainer.actor.step)
     actor = state.actor
     lengths = np.array(SMALL.scheduler.skill_lengths)
     prev_c = np.zeros(4, int)
@@ -43,7 +43,7 @@ def test_acting_counters_across_auto_reset(small_trainer):
     for t in range(20):
         actor, tr, st = act(actor, state.scheduler.policy_params, state.new_skill.policy_params, state.normalizer,
                             jax.random.PRNGKey(t))
-        c, dec, i, k = (np.asarray(tr[x]) for x in ("c", "is_decision", "skill", "k_idx"))
+        c, dec, i, k = (np.asarray(x) for x in (tr.c, tr.is_decision, tr.skill, tr.k_idx))
         expected_dec = prev_first | (prev_c <= 1)
         np.testing.assert_array_equal(dec, expected_dec)
         np.testing.assert_array_equal(c[dec], lengths[k[dec]])  # a decision sets c = k
@@ -51,11 +51,11 @@ def test_acting_counters_across_auto_reset(small_trainer):
             np.testing.assert_array_equal(c[~dec], prev_c[~dec] - 1)  # otherwise count down
             np.testing.assert_array_equal(i[~dec], prev_i[~dec])
             np.testing.assert_array_equal(k[~dec], prev_k[~dec])
-        done = np.asarray(st["done"])
+        done = np.asarray(st.done)
         assert done.any() == ((t + 1) % 7 == 0)  # episode length 7, synchronous envs
         np.testing.assert_array_equal(np.asarray(actor.first), done)  # a reset forces a decision next
         # Truncation bootstraps: discount stays 1 at the time limit.
-        np.testing.assert_array_equal(np.asarray(tr["discount"]), 1.0)
+        np.testing.assert_array_equal(np.asarray(tr.discount), 1.0)
         prev_c, prev_first, prev_i, prev_k = c, np.asarray(actor.first), i, k
 
 
@@ -146,18 +146,18 @@ def test_nonfinite_transitions_are_masked():
     exp = state.replay.experience
     n = int(state.replay.current_index)
     for key in ("obs", "next_obs", "reward"):
-        assert np.all(np.isfinite(np.asarray(exp[key][0, :n])))
+        assert np.all(np.isfinite(np.asarray(getattr(exp, key)[0, :n])))
     assert np.all(np.isfinite(np.asarray(state.normalizer.mean)))
     leaves = jax.tree.leaves(state.new_skill.policy_params) + jax.tree.leaves(state.scheduler.critic_params)
     assert all(np.all(np.isfinite(np.asarray(x))) for x in leaves)
     # The blown-up transitions carry weight 0.
-    w = np.asarray(exp["weight"][0, :n])
+    w = np.asarray(exp.weight[0, :n])
     # Each env blows up at its 3rd step after every reset: global steps 3, 6, 9, 12, 15.
     assert (w == 0).sum() == 4 * 5
 
 
 def test_cpu_recipe_applies_only_to_learner_configs_left_at_paper_defaults():
-    from parallel_skills.train import CPU_DEFAULTS, resolve
+    from parallel_skills.config import CPU_DEFAULTS, resolve
 
     cfg, notes = resolve(TrainConfig(), backend="cpu")
     assert cfg.num_envs == CPU_DEFAULTS["num_envs"] and cfg.replay_size == CPU_DEFAULTS["replay_size"]
@@ -178,7 +178,7 @@ def test_cpu_recipe_applies_only_to_learner_configs_left_at_paper_defaults():
 def test_cpu_recipe_fills_the_fields_a_config_file_leaves():
     """training.run knows which fields its config file set (``given``): each recipe field it left
     takes the CPU recipe, whatever else the file set; what it set stands, paper values included."""
-    from parallel_skills.train import CPU_DEFAULTS, resolve
+    from parallel_skills.config import CPU_DEFAULTS, resolve
 
     mine = TrainConfig(scheduler=SchedulerConfig(samples_per_insert=100.0), new_skill=NewSkillConfig(n_step=3))
     cfg, notes = resolve(mine, backend="cpu", given=["new_skill.n_step", "scheduler.samples_per_insert"])

@@ -47,7 +47,8 @@ def abstract_training_state(environment, skills, config, seed: int):
     is computed), and a function returning the empty replay buffer of that run."""
     import jax
 
-    from parallel_skills.train import make_trainer, resolve
+    from parallel_skills.config import resolve
+    from parallel_skills.train import make_trainer
 
     trainer = make_trainer(environment, skills, resolve(config)[0])
     key = jax.random.PRNGKey(seed)

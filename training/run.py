@@ -232,7 +232,7 @@ def prepare_new(args, argv):
         raise UsageError(f"unknown skill set {a['skills']!r}; valid: {', '.join(skill_sets.SET_NAMES)}")
 
     from parallel_skills import TrainConfig
-    from parallel_skills.train import resolve
+    from parallel_skills.config import resolve
 
     cfg = TrainConfig(eval_episodes=DEFAULTS["eval_episodes"])
     file_data = {}

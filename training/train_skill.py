@@ -222,7 +222,7 @@ def finetune(env, policy_params, stats, seed: int, num_timesteps: int, num_envs=
     import jax.numpy as jnp
 
     from parallel_skills import NewSkillConfig, TrainConfig, make_trainer, train
-    from parallel_skills.train import resolve
+    from parallel_skills.config import resolve
 
     # Pinned, not the trainer's CPU recipe (which may change with what SkillS needs): the shipped
     # skills were fine-tuned with these settings.
@@ -320,7 +320,7 @@ def _train_skill(args, argv, base):
     if args.crr_steps > 0:
         t1 = time.perf_counter()
         from parallel_skills import TrainConfig
-        from parallel_skills.train import resolve
+        from parallel_skills.config import resolve
 
         n_ft = resolve(TrainConfig(num_envs=args.crr_envs))[0].num_envs  # the trainer's device default if None
         env_ft = make_env(args.skill, args.physics, n_ft)

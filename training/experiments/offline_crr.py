@@ -20,6 +20,7 @@ def main():
     from parallel_skills import NewSkillConfig, learners
     from parallel_skills import normalization as norm
     from parallel_skills.evaluation import make_evaluator
+    from parallel_skills.replay import Transition
     from tasks.manipulation import scripted
     from training.experiments.scripted_data import collect_noisy_expert
 
@@ -54,8 +55,9 @@ def main():
             k1, k2 = jax.random.split(k)
             idx = jax.random.randint(k1, (cfg.batch_size,), 0, size)
             b = jax.tree.map(lambda x: x[idx], data)
-            b["obs"], b["next_obs"] = norm.normalize(stats, b["obs"]), norm.normalize(stats, b["next_obs"])
-            return learners.new_skill_learner_update(st, b, k2, cfg)
+            batch = Transition.batch(obs=norm.normalize(stats, b["obs"]), action=b["action"], reward=b["reward"],
+                                     discount=b["discount"], next_obs=norm.normalize(stats, b["next_obs"]))
+            return learners.new_skill_learner_update(st, batch, k2, cfg)
 
         return jax.lax.scan(body, state, jax.random.split(key, args.chunk))
 

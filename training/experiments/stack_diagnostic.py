@@ -164,8 +164,8 @@ def analyse(run_dir: str, step, num_envs: int, seed: int) -> dict:
 
     # Replay: the critic on stored transitions (obs normalised with the current statistics, as the learner does).
     rp = ts.replay
-    size = int(rp.experience["reward"].shape[1]) if bool(rp.is_full) else int(rp.current_index)
-    ex = {key: np.asarray(rp.experience[key][0, :size]) for key in ("obs", "action", "reward")}
+    size = int(rp.experience.reward.shape[1]) if bool(rp.is_full) else int(rp.current_index)
+    ex = {key: np.asarray(getattr(rp.experience, key)[0, :size]) for key in ("obs", "action", "reward")}
     q_fn = jax.jit(lambda o, a: learners.critic_values(critic, cp, obs_norm.normalize(norm, o), a))
     chunk = 16384
     qs = []
