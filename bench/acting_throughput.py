@@ -17,7 +17,8 @@ import tasks
 from parallel_skills import Skill, TrainConfig
 from parallel_skills.config import resolve
 from parallel_skills.train import make_trainer
-from tasks.manipulation import scripted, skill_sets
+from tasks.manipulation import scripted
+from training import skill_library
 
 
 def timed(fn, *args, repeats=3):
@@ -40,7 +41,7 @@ def main():
     args = p.parse_args()
 
     env = tasks.make(args.task, physics=args.physics)
-    names = skill_sets.skill_names(args.task, args.skills)
+    names = skill_library.skill_names(args.task, args.skills)
     skills = [Skill.from_fn(n, scripted.get(n)) for n in names]
     cfg, _ = resolve(TrainConfig(num_envs=args.num_envs, unroll_length=args.steps, replay_size=200_000))
     trainer = make_trainer(env, skills, cfg)

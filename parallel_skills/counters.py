@@ -1,4 +1,4 @@
-"""Scheduler counters (paper §4.1, App. A.1 Eq. 5; DESIGN "Scheduler and counters").
+"""Scheduler counters (paper §4.1, App. A.1 Eq. 5; docs/design.md "Scheduler and counters").
 
 Convention: the counter c_t is the number of steps left for the current skill,
 *including* step t. At a decision step c_t = k_t; then c_{t+1} = c_t − 1; when c_t = 1

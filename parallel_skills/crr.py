@@ -1,5 +1,5 @@
 """Critic Regularized Regression for the new skill (Wang et al. 2020; paper §4.2;
-DESIGN "New skill").
+docs/design.md "New skill").
 
 Policy loss −E[f(A)·log π(a|s)] with A(s, a) = Q(s, a) − mean_j Q(s, a_j), a_j ~ π(.|s),
 f = min(exp(A/β), clip) ("exp") or 1[A > 0] ("indicator"). The critic Q(s, a) is learnt by

@@ -1,4 +1,4 @@
-"""Hierarchical Categorical MPO losses (paper §4.3 Eq. 3-4; DESIGN "HCMPO").
+"""Hierarchical Categorical MPO losses (paper §4.3 Eq. 3-4; docs/design.md "HCMPO").
 
 Joint scheduler actions z = (i, k) are enumerated exactly (P = (N+1)·M pairs, order of
 ``networks.all_pairs``), so all expectations are sums, not samples.

@@ -187,7 +187,7 @@ class QEnsemble(nn.Module):
 
 
 class SchedulerCritic(nn.Module):
-    """Scheduler critic Q(s, c, i, k) (paper Eq. 3; DESIGN "Scheduler and counters").
+    """Scheduler critic Q(s, c, i, k) (paper Eq. 3; docs/design.md "Scheduler and counters").
 
     __call__(obs [B, O], c [B, P] int, i [B, P] int, k_idx [B, P] int) -> q [B, P].
 

@@ -4,7 +4,7 @@
   skill: ``policy(obs)`` -> mean action in (-1, 1).
 * ``NumpySchedulerPolicy``: an export's scheduler: ``choose(obs, rng=None)`` -> (i, k_idx), greedy
   (argmax of each head) or sampled.
-* ``ScheduledPolicy``: the scheduler acting through its skills with the counters of DESIGN.md
+* ``ScheduledPolicy``: the scheduler acting through its skills with the counters of docs/design.md "Scheduler and counters"
   ("Scheduler and counters"): at a decision pick (i, k), then run skill i for K[k] steps.
 * ``load_export(path)``: an ``export.npz`` + ``export.json`` written by ``training.export``.
 
@@ -212,7 +212,7 @@ class NumpySchedulerPolicy(_NumpyMLP):
 
 
 class ScheduledPolicy:
-    """The scheduler running its skills for a batch of envs, with per-env counters (DESIGN.md):
+    """The scheduler running its skills for a batch of envs, with per-env counters (docs/design.md "Scheduler and counters"):
     c_t = steps left for the current skill including step t; a decision happens at episode start
     or when the previous c was 1, and sets (c, i, k) = (K[k], i, k) from a fresh scheduler choice;
     otherwise c counts down and the skill keeps acting.

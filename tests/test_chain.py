@@ -168,21 +168,21 @@ def test_chain_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, argv, 
 def test_load_skills_prefers_the_skill_dir(tmp_path):
     from parallel_skills import Skill
     from parallel_skills.networks import GaussianPolicy
-    from tasks.manipulation import skill_sets
+    from training import skill_library
 
     obs, act = 60, 5
     net = GaussianPolicy(action_size=act, hidden=(8,))
     params = {"policy": net.init(jax.random.PRNGKey(0), np.zeros((1, obs), np.float32)),
               "obs_mean": np.zeros(obs, np.float32), "obs_std": np.ones(obs, np.float32)}
     Skill.gaussian_mlp("mine", params, act, (8,)).save(str(tmp_path / "reach_green.npz"), obs_size=obs)
-    skills = skill_sets.load_skills(["reach_green", "lift_arm_closed"], "kinematic", "scripted", obs, act,
+    skills = skill_library.load_skills(["reach_green", "lift_arm_closed"], "kinematic", "scripted", obs, act,
                                     skill_dir=str(tmp_path))
     assert [s.name for s in skills] == ["reach_green", "lift_arm_closed"]
     assert skills[0].metadata["source"] == "skill_dir" and skills[1].metadata["source"] == "scripted"
     with pytest.raises(ValueError, match="obs"):  # sizes are checked against the task
-        skill_sets.load_skills(["reach_green"], "kinematic", "scripted", obs + 1, act, skill_dir=str(tmp_path))
+        skill_library.load_skills(["reach_green"], "kinematic", "scripted", obs + 1, act, skill_dir=str(tmp_path))
     with pytest.raises(ValueError, match="does not exist"):
-        skill_sets.load_skills(["reach_green"], "kinematic", "scripted", obs, act, skill_dir=str(tmp_path / "nope"))
+        skill_library.load_skills(["reach_green"], "kinematic", "scripted", obs, act, skill_dir=str(tmp_path / "nope"))
 
 
 def test_total_training_wall_time_reads_runs_recorded_without_it(tmp_path):

@@ -111,7 +111,7 @@ def test_sampled_scheduler_matches_probabilities(exported):
 
 
 def test_counters_run_skill_i_for_k_steps():
-    """At a decision pick (i, k); skill i acts K[k] steps (DESIGN "Scheduler and counters")."""
+    """At a decision pick (i, k); skill i acts K[k] steps (docs/design.md "Scheduler and counters")."""
 
     class Alternating:
         calls = 0
@@ -194,14 +194,14 @@ def test_evaluate_scheduler_runs_library_and_skill_dir_skills(tmp_path, capsys):
     same names; a skill file changed since the run is one error line."""
     import shutil
 
-    from tasks.manipulation import skill_sets
+    from training import skill_library
     from training.run import skill_sources
 
     own = tmp_path / "skills"
     own.mkdir()
     for ext in ("npz", "json"):  # a user's lift_arm_closed: here the shipped reach_green's network
         shutil.copy(os.path.join(ROOT, "checkpoints", "kinematic", f"reach_green.{ext}"), own / f"lift_arm_closed.{ext}")
-    skills = skill_sets.load_skills(SKILLS, "kinematic", "library", L.OBS_SIZE, L.ACTION_SIZE, skill_dir=str(own))
+    skills = skill_library.load_skills(SKILLS, "kinematic", "library", L.OBS_SIZE, L.ACTION_SIZE, skill_dir=str(own))
     sources = skill_sources(skills, "kinematic")
     assert [e["source"] for e in sources] == ["library", "skill_dir"] and sources[0]["library"] == "kinematic"
     assert sources[1]["path"] == str(own / "lift_arm_closed.npz") and "path" not in sources[0]  # no machine path

@@ -174,11 +174,11 @@ def test_one_critic_keeps_the_single_critic_layout():
     assert _finite(metrics) and _finite(new_state)
     import dataclasses
     from parallel_skills import TrainConfig
-    from training.run import _train_config_from_json
+    from training.rundir import train_config_from_json
 
     old = dataclasses.asdict(TrainConfig())
     del old["new_skill"]["num_critics"]
-    assert _train_config_from_json(old, "config.json").new_skill.num_critics == 1
+    assert train_config_from_json(old, "config.json").new_skill.num_critics == 1
 
 
 def test_new_skill_mpo_mix_runs():

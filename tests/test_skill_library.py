@@ -20,7 +20,7 @@ import tasks
 from parallel_skills import Skill, SkillSet
 from parallel_skills.evaluation import rollout_episodes
 from tasks.manipulation import layout as L
-from tasks.manipulation import skill_sets
+from training import skill_library
 from tasks.manipulation.task_defs import canonical
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -66,7 +66,7 @@ def test_the_kinematic_library_is_complete():
     basic = {"reach_green", "reach_yellow", "reach_blue", "open_fingers", "lift_arm_open", "lift_arm_closed",
              "hover_green_on_yellow", "hover_yellow_on_blue"}
     assert basic <= shipped, sorted(basic - shipped)
-    assert set(skill_sets.skill_names("lift", "many_useful")) <= shipped
+    assert set(skill_library.skill_names("lift", "many_useful")) <= shipped
     # Higher skills (lift X, stack X on Y) come from SkillS runs (training.chain, shipped by
     # training.ship), never cloned by train_skill.
     higher = [n for n in shipped if re.match(r"^(lift|stack)_(green|yellow|blue)", n)]
@@ -81,7 +81,7 @@ def test_the_mjx_library_has_the_basic_skills():
     basic = {"reach_green", "reach_yellow", "reach_blue", "open_fingers", "lift_arm_open", "lift_arm_closed",
              "hover_green_on_yellow"}
     assert basic <= shipped, sorted(basic - shipped)
-    assert {skill_sets.library_path(p, "reach_green") for p in ("mujoco", "mjx", "warp")} == {
+    assert {skill_library.library_path(p, "reach_green") for p in ("mujoco", "mjx", "warp")} == {
         os.path.join(ROOT, "checkpoints", "mjx", "reach_green.npz")}
 
 
@@ -93,7 +93,7 @@ def test_shipped_skill(path):
     library = os.path.basename(os.path.dirname(path))
     physics = meta["physics"]  # the backend it was trained and recorded on
     stem = os.path.basename(path)[:-4]
-    assert skill_sets.library_dir(physics) == library and meta["domain"] == "manipulation"
+    assert skill_library.library_dir(physics) == library and meta["domain"] == "manipulation"
     assert stem == (meta["task"] if meta["seed"] == 0 else f"{meta['task']}.s{meta['seed']}")
     assert meta["name"] == meta["task"] and meta["task"] in tasks.names()
     assert (meta["obs_size"], meta["action_size"]) == (L.OBS_SIZE, L.ACTION_SIZE)
@@ -143,10 +143,10 @@ def test_recorded_success_is_what_training_evaluate_prints(capsys):
 # ----------------------------------------------------------------------------- skill sets
 
 def test_many_useful_loads_from_the_library_and_stacks():
-    names = skill_sets.skill_names("lift", "many_useful")
+    names = skill_library.skill_names("lift", "many_useful")
     assert names == ["reach_green", "reach_green.s1", "reach_green.s2",
                      "lift_arm_closed", "lift_arm_closed.s1", "lift_arm_closed.s2"]
-    skills = skill_sets.load_skills(names, "kinematic", "library", L.OBS_SIZE, L.ACTION_SIZE)
+    skills = skill_library.load_skills(names, "kinematic", "library", L.OBS_SIZE, L.ACTION_SIZE)
     assert [s.name for s in skills] == names
     assert all(s.metadata["source"] == "library" for s in skills)
     s_set = SkillSet(skills)
@@ -159,19 +159,19 @@ def test_many_useful_loads_from_the_library_and_stacks():
 
 def _first_unshipped(task):
     """The first skill of ``task``'s useful set that the kinematic library lacks."""
-    names = skill_sets.skill_names(task, "useful")
+    names = skill_library.skill_names(task, "useful")
     return next(n for n in names if not os.path.isfile(os.path.join(ROOT, "checkpoints", "kinematic", f"{n}.npz")))
 
 
 def test_skill_sources_fail_in_one_line(tmp_path):
     missing = _first_unshipped("triple_stack")
     with pytest.raises(ValueError, match=rf"kinematic skill library: .*{missing}\.npz does not exist"):
-        skill_sets.load_skills(skill_sets.skill_names("triple_stack", "useful"), "kinematic", "library")
+        skill_library.load_skills(skill_library.skill_names("triple_stack", "useful"), "kinematic", "library")
     with pytest.raises(ValueError, match="seed 1 of 'reach_green', which only the neural library has"):
-        skill_sets.load_skills(["reach_green.s1"], "kinematic", "scripted")
+        skill_library.load_skills(["reach_green.s1"], "kinematic", "scripted")
     with pytest.raises(ValueError, match="mujoco skill library: .*checkpoints/mjx/reach_green.npz does not exist"):
-        skill_sets.load_skills(["reach_green"], "mujoco", "library", root=str(tmp_path / "checkpoints"))
-    scripted = skill_sets.load_skills(["reach_green", "open_fingers"], "kinematic", "scripted")
+        skill_library.load_skills(["reach_green"], "mujoco", "library", root=str(tmp_path / "checkpoints"))
+    scripted = skill_library.load_skills(["reach_green", "open_fingers"], "kinematic", "scripted")
     assert [s.params for s in scripted] == [None, None]
 
 

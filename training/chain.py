@@ -31,7 +31,7 @@ import time
 
 from training.cli import (Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int,
                           write_json_atomic)
-from training.run import exported_budget
+from training.rundir import exported_budget, read_record
 
 STAGES = ("lift_green", "lift_yellow", "lift_blue", "stack")
 # Env steps per stage on a CPU: kinematic lift reaches 0.8-0.9 after 250k-300k (docs/learning.md);
@@ -43,7 +43,7 @@ BUDGET_ARGS = ("lift_timesteps", "stack_timesteps", "timesteps")
 
 def build_parser():
     import tasks
-    from tasks.manipulation.skill_sets import SOURCES
+    from training.skill_library import SOURCES
 
     p = Parser(prog="python -m training.chain", description=__doc__.splitlines()[0])
     p.add_argument("--physics", default="kinematic", help=f"one of {', '.join(tasks.PHYSICS)}; default kinematic")
@@ -102,7 +102,7 @@ def stage_argv(task: str, args, skill_dir: str, run_dir: str, resume: bool) -> l
 
 def validate(args) -> list[str]:
     import tasks
-    from tasks.manipulation import skill_sets
+    from training import skill_library
 
     stages = [s for s in args.stages.split(",") if s]
     if not stages:
@@ -110,9 +110,9 @@ def validate(args) -> list[str]:
     for s in stages:
         if s not in tasks.names():
             raise UsageError(f"unknown task {s!r} in --stages; valid tasks: {', '.join(tasks.names())}")
-        if s not in skill_sets.TABLE:
+        if s not in skill_library.TABLE:
             raise UsageError(f"task {s!r} has no skill table (it cannot be a SkillS stage); valid: "
-                             f"{', '.join(sorted(skill_sets.TABLE))}")
+                             f"{', '.join(sorted(skill_library.TABLE))}")
     if len(set(stages)) != len(stages):
         raise UsageError(f"--stages repeats a task: {args.stages}")
     unknown = sorted(set(parse_stage_timesteps(args.timesteps)) - set(stages))
@@ -173,16 +173,15 @@ def check_budgets(stages: list[str], args, out: str) -> None:
         if not os.path.isfile(cfg_path):
             continue
         try:
-            with open(cfg_path) as f:
-                run = json.load(f)
-            budget = int(run["num_timesteps"])
-        except (OSError, ValueError, KeyError, TypeError):
+            run = read_record(os.path.join(out, task))
+            budget = int(run.num_timesteps)
+        except (UsageError, ValueError, TypeError):
             raise UsageError(f"{cfg_path} is unreadable (the stage's training run); choose a new --out") from None
         wanted = stage_timesteps(task, args)
         if wanted < budget:
             raise UsageError(f"stage {task} has a budget of {budget} env steps ({cfg_path}); the command asks for "
                              f"{wanted}: a chain's budgets can be raised, not lowered")
-        users = [t for t in extended if t in run.get("skills", [])]
+        users = [t for t in extended if t in run.skills]
         if users:
             raise UsageError(f"stage {task} was trained with the skill of {', '.join(users)}, which this command "
                              f"extends; it would be stale: choose a new --out")

@@ -1,12 +1,15 @@
 """Evaluate a policy for whole episodes.
 
     python -m training.evaluate --task lift --physics kinematic --policy scripted:lift_green --episodes 64
+    python -m training.evaluate --task lift --physics kinematic --policy library:lift_green
     python -m training.evaluate --task lift --physics mujoco --policy runs/<run>/export.npz
     python -m training.evaluate --task lift --physics kinematic --policy runs/<run>/export.npz:scheduler
 
 ``--policy``:
 
 * ``scripted:NAME``: a scripted controller (see ``tasks.manipulation.scripted``);
+* ``library:NAME``: the shipped skill NAME of the physics' library (``checkpoints/<library>/NAME.npz``,
+  found in the installed package);
 * ``PATH.npz``: a Gaussian-MLP skill with its JSON sidecar (``Skill.save``, e.g. ``new_skill.npz``);
 * ``DIR/export.npz`` (or ``DIR/export.npz:new_skill``): an export's new skill alone
   (``training.export``);
@@ -32,10 +35,20 @@ from training.cli import Parser, UsageError, main_guard, nonnegative_int, positi
 EXPORT_SUFFIXES = ("new_skill", "scheduler")
 
 
-def parse_policy(spec: str) -> tuple[str, str, str | None]:
-    """``--policy`` -> (kind, name or path, suffix): kind "scripted", "skill" or "export"."""
+def parse_policy(spec: str, physics: str = "kinematic") -> tuple[str, str, str | None]:
+    """``--policy`` -> (kind, name or path, suffix): kind "scripted", "skill" or "export".
+    ``library:NAME`` is the shipped skill NAME of ``physics``'s library (wherever the package is installed)."""
     if spec.startswith("scripted:"):
         return "scripted", spec.split(":", 1)[1], None
+    if spec.startswith("library:"):
+        from training.skill_library import library_dir, library_path
+
+        path = library_path(physics, spec.split(":", 1)[1])
+        if not os.path.isfile(path):
+            shipped = sorted(f[:-4] for f in os.listdir(os.path.dirname(path)) if f.endswith(".npz"))
+            raise UsageError(f"no skill {spec.split(':', 1)[1]!r} in the {library_dir(physics)} library; "
+                             f"shipped: {', '.join(shipped)}")
+        return "skill", path, None
     path, sep, suffix = spec.rpartition(".npz:")
     if sep:
         path += ".npz"
@@ -144,7 +157,7 @@ def neural_skill(entry: dict, export_path: str):
     """A frozen neural skill of an export's ``skill_sources`` entry (library or skill_dir) as a NumPy
     policy ``obs [B, O] -> mean actions [B, A]``, checked against the SHA-256 recorded at training."""
     from parallel_skills.numpy_policy import NumpyGaussianPolicy
-    from tasks.manipulation.skill_sets import library_path
+    from training.skill_library import library_path
     from training.export import file_sha256
 
     if entry["source"] == "library":  # entry["library"] is a library_dir name, which maps to itself
@@ -219,7 +232,7 @@ def main(argv=None):
     p.add_argument("--task", default="lift", help="task name (see tasks.names())")
     p.add_argument("--physics", default="kinematic", help=f"one of {', '.join(tasks.PHYSICS)}")
     p.add_argument("--policy", required=True,
-                   help="scripted:NAME, a skill PATH.npz, DIR/export.npz (the new skill alone) or "
+                   help="scripted:NAME, library:NAME (a shipped skill), a skill PATH.npz, DIR/export.npz (the new skill alone) or "
                         "DIR/export.npz:scheduler (the scheduler running the export's skills). With --physics "
                         "mujoco the .npz policies import no JAX (NumPy + classic MuJoCo), except :scheduler, "
                         "whose scripted skills are JAX functions")
@@ -257,7 +270,7 @@ def evaluate_policy(task: str, physics: str, policy: str, episodes: int = 64, se
         raise UsageError(f"unknown physics {physics!r}; valid: {', '.join(tasks.PHYSICS)}")
     args = argparse.Namespace(task=task, physics=physics, policy=policy, episodes=int(episodes), seed=int(seed),
                               episode_length=episode_length)
-    kind, target, suffix = parse_policy(policy)
+    kind, target, suffix = parse_policy(policy, physics)
     if kind == "scripted":
         from tasks.manipulation import scripted
 

@@ -27,14 +27,15 @@ import csv
 import dataclasses
 import io
 import json
-import math
 import os
 import sys
 import time
 
-from training.cli import (Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int,
-                          write_json_atomic)
+from training import rundir
+from training.cli import Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int
 from training.logging_utils import Progress, TensorBoardLogger, format_row
+from training.rundir import RunRecord
+from parallel_skills.config import TrainConfig
 
 # CPU: the README quickstart must end within 15 minutes on 2 cores (kinematic lift, seed 0: ≈ 0.4
 # success after 160k steps, 0.8-0.97 from 260k; other seeds are slower; docs/learning.md, README).
@@ -43,11 +44,7 @@ DEFAULT_TIMESTEPS = {"cpu": 160_000, "accelerator": 20_000_000}
 # that conflict with the run's config.json).
 DEFAULTS = dict(task="lift", physics="kinematic", seed=0, skills="useful", skill_source="scripted", method="skills",
                 eval_episodes=32)
-METHODS = ("skills", "scratch")
-# Integer config fields that must be >= 1 (other integer fields must be >= 0).
-POSITIVE_FIELDS = {"num_envs", "replay_size", "unroll_length", "eval_episodes", "eval_every", "batch_size",
-                   "target_actor_period", "target_critic_period", "num_action_samples", "mpo_num_samples",
-                   "num_critics", "n_step"}
+METHODS = TrainConfig.METHODS
 CSV_FIELDS = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skill_return", "eval/scheduler_success",
               "eval/scheduler_return", "episode_success", "episode_return", "new_skill_selection_rate",
               "scheduler/critic_loss", "new_skill/critic_loss", "scheduler/policy_entropy_i", "skill_histogram",
@@ -58,7 +55,7 @@ DEFAULT_CACHE_DIR = os.path.join(os.path.expanduser("~"), ".cache", "parallel_sk
 
 def build_parser():
     import tasks
-    from tasks.manipulation.skill_sets import SET_NAMES, SOURCES
+    from training.skill_library import SET_NAMES, SOURCES
 
     p = Parser(prog="python -m training.run", description=__doc__.splitlines()[0])
     p.add_argument("--task", default=None, help="task name (see tasks.names()); default lift")
@@ -97,74 +94,15 @@ def build_parser():
 
 # ----------------------------------------------------------------------------- config files
 
-def _check_value(where: str, name: str, default, value):
-    """Type / range check of one config value against the field's default; returns the value."""
-    def bad(what):
-        return UsageError(f"{where}: {name} must be {what}, got {json.dumps(value)}")
-
-    is_int = isinstance(value, int) and not isinstance(value, bool)
-    lo = 1 if name.rsplit(".", 1)[-1] in POSITIVE_FIELDS else 0
-    if default is None:  # device-dependent size (num_envs, replay_size)
-        if value is None:
-            return None
-        if not is_int or value < lo:
-            raise bad("a positive integer or null")
-        return value
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise bad("true or false")
-        return value
-    if isinstance(default, int):
-        if not is_int or value < lo:
-            raise bad("a positive integer" if lo else "a non-negative integer")
-        return value
-    if isinstance(default, float):
-        if not (is_int or isinstance(value, float)) or not math.isfinite(value):
-            raise bad("a finite number")
-        return float(value)
-    if isinstance(default, str):
-        if not isinstance(value, str):
-            raise bad("a string")
-        return value
-    if isinstance(default, tuple):
-        if (not isinstance(value, (list, tuple)) or not value
-                or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in value)):
-            raise bad("a non-empty list of positive integers")
-        return tuple(value)
-    return value
-
-
 def apply_config(cfg, data: dict, where: str):
-    """``cfg`` with the TrainConfig fields of ``data`` (nested scheduler / new_skill dicts) set;
-    every name, type and range checked. ``where`` names the source in error messages."""
-    nested = ("scheduler", "new_skill")
-    if not isinstance(data, dict):
-        raise UsageError(f"{where} must hold a JSON object of TrainConfig fields")
-    top = {f.name for f in dataclasses.fields(cfg)}
-    updates = {}
-    for key, value in data.items():
-        if key not in top:
-            raise UsageError(f"unknown config field {key!r} in {where}; valid: {', '.join(sorted(top))}")
-        if key in nested:
-            sub = getattr(cfg, key)
-            if not isinstance(value, dict):
-                raise UsageError(f"{where}: {key} must be a JSON object of {type(sub).__name__} fields")
-            valid = {f.name for f in dataclasses.fields(sub)}
-            bad = sorted(set(value) - valid)
-            if bad:
-                raise UsageError(f"unknown {key} config field(s) {bad} in {where}; valid: {', '.join(sorted(valid))}")
-            try:
-                value = dataclasses.replace(sub, **{k: _check_value(where, f"{key}.{k}", getattr(sub, k), v)
-                                                    for k, v in value.items()})
-            except (ValueError, TypeError) as e:
-                raise UsageError(f"{where}: invalid {key} config: {e}") from None
-        else:
-            value = _check_value(where, key, getattr(cfg, key), value)
-        updates[key] = value
+    """``cfg`` with the TrainConfig fields of ``data`` set (``parallel_skills.config.from_dict``
+    checks every name, type and range); a bad value is one error line."""
+    from parallel_skills.config import from_dict
+
     try:
-        return dataclasses.replace(cfg, **updates)
-    except (ValueError, TypeError) as e:
-        raise UsageError(f"{where}: invalid config: {e}") from None
+        return from_dict(cfg, data, where)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
 
 
 def load_config_file(path: str) -> dict:
@@ -185,18 +123,6 @@ def load_config_file(path: str) -> dict:
 def apply_config_file(cfg, path):
     """Override TrainConfig fields (and nested scheduler / new_skill fields) from a JSON file."""
     return apply_config(cfg, load_config_file(path), f"config file {path}")
-
-
-def _first_difference(a, b, prefix=""):
-    for f in dataclasses.fields(a):
-        x, y = getattr(a, f.name), getattr(b, f.name)
-        if dataclasses.is_dataclass(x):
-            d = _first_difference(x, y, f"{prefix}{f.name}.")
-            if d:
-                return d
-        elif x != y:
-            return f"{prefix}{f.name}", x, y
-    return None
 
 
 # ----------------------------------------------------------------------------- preparing a run
@@ -221,18 +147,18 @@ def _check_writable(out):
 def prepare_new(args, argv):
     """Validate everything, then create the run directory and its config.json."""
     import tasks
-    from tasks.manipulation import skill_sets
+    from training import skill_library
 
     a = {k: (getattr(args, k) if getattr(args, k) is not None else v) for k, v in DEFAULTS.items()}
     if a["task"] not in tasks.names():
         raise UsageError(f"unknown task {a['task']!r}; valid tasks: {', '.join(tasks.names())}")
     if a["physics"] not in tasks.PHYSICS:
         raise UsageError(f"unknown physics {a['physics']!r}; valid: {', '.join(tasks.PHYSICS)}")
-    if a["skills"] not in skill_sets.SET_NAMES:
-        raise UsageError(f"unknown skill set {a['skills']!r}; valid: {', '.join(skill_sets.SET_NAMES)}")
+    if a["skills"] not in skill_library.SET_NAMES:
+        raise UsageError(f"unknown skill set {a['skills']!r}; valid: {', '.join(skill_library.SET_NAMES)}")
 
     from parallel_skills import TrainConfig
-    from parallel_skills.config import resolve
+    from parallel_skills.config import dotted_names, resolve
 
     cfg = TrainConfig(eval_episodes=DEFAULTS["eval_episodes"])
     file_data = {}
@@ -244,7 +170,7 @@ def prepare_new(args, argv):
     method = cfg.method
     if method not in METHODS:  # (TrainConfig validates it too)
         raise UsageError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
-    names = [] if method == "scratch" else skill_sets.skill_names(a["task"], a["skills"])
+    names = [] if method == "scratch" else skill_library.skill_names(a["task"], a["skills"])
 
     out = args.out or os.path.join("runs", f"{a['task']}-{method}-s{a['seed']}-{time.strftime('%Y%m%d-%H%M%S')}")
     if os.path.exists(out):
@@ -256,7 +182,7 @@ def prepare_new(args, argv):
 
     on_cpu = jax.default_backend() == "cpu"
     num_timesteps = args.num_timesteps or DEFAULT_TIMESTEPS["cpu" if on_cpu else "accelerator"]
-    resolved, notes = resolve(cfg, given=_dotted_names(file_data))  # (the recipe fills what the file leaves)
+    resolved, notes = resolve(cfg, given=dotted_names(file_data))  # (the recipe fills what the file leaves)
     if args.eval_every is not None:
         eval_every = args.eval_every
     elif "eval_every" in file_data:
@@ -267,40 +193,17 @@ def prepare_new(args, argv):
     overrides = {} if args.episode_length is None else {"episode_length": args.episode_length}
     env = tasks.make(a["task"], physics=a["physics"], **overrides)  # validates the overrides
     skill_dir = os.path.abspath(args.skill_dir) if args.skill_dir else None
-    skill_sets.load_skills(names, a["physics"], a["skill_source"], env.observation_size, env.action_size,
+    skill_library.load_skills(names, a["physics"], a["skill_source"], env.observation_size, env.action_size,
                            skill_dir=skill_dir)  # exist, fit (a ValueError is one error line: main_guard)
 
-    run = {"command": _command(argv), "task": a["task"], "physics": a["physics"], "skill_set": a["skills"],
-           "skill_source": a["skill_source"], "skill_dir": skill_dir, "skills": names, "seed": a["seed"], "num_timesteps": num_timesteps,
-           "episode_length": int(getattr(env, "episode_length", 0)) or args.episode_length,
-           "checkpoint_every": args.checkpoint_every, "replay_checkpoint": not args.no_replay_checkpoint,
-           "video": bool(args.video), "train_config": dataclasses.asdict(resolved), "auto": notes}
-    try:
-        os.makedirs(out)
-    except OSError as e:
-        raise UsageError(f"cannot create the run directory {out}: {e.strerror}") from None
-    with open(os.path.join(out, "config.json"), "w") as f:
-        json.dump(run, f, indent=2, default=str)
+    run = RunRecord(
+        command=_command(argv), task=a["task"], physics=a["physics"], skill_set=a["skills"],
+        skill_source=a["skill_source"], skill_dir=skill_dir, skills=names, seed=a["seed"],
+        num_timesteps=num_timesteps, episode_length=int(getattr(env, "episode_length", 0)) or args.episode_length,
+        checkpoint_every=args.checkpoint_every, replay_checkpoint=not args.no_replay_checkpoint,
+        video=bool(args.video), train_config=dataclasses.asdict(resolved), auto=notes)
+    rundir.create(out, run)
     return out, run, resolved, env
-
-
-def _dotted_names(data: dict, prefix: str = "") -> list[str]:
-    """``{"a": 1, "new_skill": {"n_step": 3}}`` -> ``["a", "new_skill.n_step"]``."""
-    out = []
-    for k, v in data.items():
-        out += _dotted_names(v, f"{prefix}{k}.") if isinstance(v, dict) else [f"{prefix}{k}"]
-    return out
-
-
-def _train_config_from_json(data, where):
-    """The TrainConfig a run's config.json records. Fields added since a run was started take the
-    value that run had: runs from before ``new_skill.num_critics`` existed trained one critic."""
-    from parallel_skills import TrainConfig
-
-    data = dict(data)
-    if isinstance(data.get("new_skill"), dict) and "num_critics" not in data["new_skill"]:
-        data["new_skill"] = dict(data["new_skill"], num_critics=1)
-    return apply_config(TrainConfig(), data, where)
 
 
 def prepare_resume(args):
@@ -316,66 +219,49 @@ def prepare_resume(args):
         raise UsageError(f"cannot resume: run directory {out} does not exist")
     if not os.path.isdir(out):
         raise UsageError(f"cannot resume: {out} is not a directory")
-    cfg_path = os.path.join(out, "config.json")
-    if not os.path.isfile(cfg_path):
-        raise UsageError(f"cannot resume: {out} has no config.json (not a training.run directory)")
-    try:
-        with open(cfg_path) as f:
-            run = json.load(f)
-        keys = ("task", "physics", "skills", "seed", "num_timesteps", "train_config")
-        if not isinstance(run, dict) or any(k not in run for k in keys):
-            raise ValueError(f"it lacks one of {', '.join(keys)}")
-        if not isinstance(run["train_config"], dict):
-            raise ValueError("train_config is not an object")
-        resolved = _train_config_from_json(run["train_config"], f"{cfg_path} train_config")
-    except UsageError:
-        raise
-    except (OSError, ValueError) as e:
-        raise UsageError(f"cannot resume: {cfg_path} is unreadable or invalid: {str(e).splitlines()[0]}") from None
-    run.setdefault("skill_set", None)
-    run.setdefault("skill_source", "scripted")
-    run.setdefault("skill_dir", None)
-    run.setdefault("episode_length", None)
-    run.setdefault("checkpoint_every", None)
-    run.setdefault("replay_checkpoint", True)
+    cfg_path = rundir.config_path(out)
+    run = rundir.read_record(out, "cannot resume")
+    resolved = run.config(f"{cfg_path} train_config")
 
-    given = {"task": (args.task, run["task"]), "physics": (args.physics, run["physics"]),
-             "skills": (args.skills, run["skill_set"]), "skill_source": (args.skill_source, run["skill_source"]),
-             "skill_dir": (os.path.abspath(args.skill_dir) if args.skill_dir else None, run["skill_dir"]),
-             "seed": (args.seed, run["seed"]),
+    given = {"task": (args.task, run.task), "physics": (args.physics, run.physics),
+             "skills": (args.skills, run.skill_set), "skill_source": (args.skill_source, run.skill_source),
+             "skill_dir": (os.path.abspath(args.skill_dir) if args.skill_dir else None, run.skill_dir),
+             "seed": (args.seed, run.seed),
              "method": (args.method, resolved.method),
-             "num_envs": (args.num_envs, resolved.num_envs), "episode_length": (args.episode_length, run["episode_length"]),
+             "num_envs": (args.num_envs, resolved.num_envs), "episode_length": (args.episode_length, run.episode_length),
              "eval_every": (args.eval_every, resolved.eval_every),
              "eval_episodes": (args.eval_episodes, resolved.eval_episodes),
-             "checkpoint_every": (args.checkpoint_every, run["checkpoint_every"])}
+             "checkpoint_every": (args.checkpoint_every, run.checkpoint_every)}
     for name, (value, stored) in given.items():
         if value is not None and value != stored:
             raise UsageError(f"--{name} {value} conflicts with {cfg_path} ({name}={json.dumps(stored)}); "
                              "--resume continues a run with its own config: drop the flag")
-    if args.no_replay_checkpoint and run["replay_checkpoint"]:
+    if args.no_replay_checkpoint and run.replay_checkpoint:
         raise UsageError(f"--no-replay-checkpoint conflicts with {cfg_path} (replay_checkpoint=true); "
                          "--resume continues a run with its own config: drop the flag")
     if args.config:
-        changed = _first_difference(resolved, apply_config_file(resolved, args.config))
+        from parallel_skills.config import first_difference
+
+        changed = first_difference(resolved, apply_config_file(resolved, args.config))
         if changed:
             raise UsageError(f"--config {args.config} sets {changed[0]}={json.dumps(changed[2], default=str)}, "
                              f"{cfg_path} has {json.dumps(changed[1], default=str)}; --resume continues a run "
                              "with its own config: drop the flag")
-    if run["task"] not in tasks.names() or run["physics"] not in tasks.PHYSICS:
-        raise UsageError(f"cannot resume: {cfg_path} names task {run['task']!r} / physics {run['physics']!r}, "
+    if run.task not in tasks.names() or run.physics not in tasks.PHYSICS:
+        raise UsageError(f"cannot resume: {cfg_path} names task {run.task!r} / physics {run.physics!r}, "
                          "which this version does not know")
     from tasks.manipulation import scripted
 
-    unknown = [n for n in run["skills"] if n not in scripted.names()
-               and not (run["skill_dir"] and os.path.isfile(os.path.join(run["skill_dir"], f"{n}.npz")))]
-    if unknown and run["skill_source"] == "scripted":  # (library skills are checked when loaded)
+    unknown = [n for n in run.skills if n not in scripted.names()
+               and not (run.skill_dir and os.path.isfile(os.path.join(run.skill_dir, f"{n}.npz")))]
+    if unknown and run.skill_source == "scripted":  # (library skills are checked when loaded)
         raise UsageError(f"cannot resume: {cfg_path} names skills {unknown} this version does not have")
-    budget = int(run["num_timesteps"])
+    budget = int(run.num_timesteps)
     if args.num_timesteps is not None and args.num_timesteps < budget:
         raise UsageError(f"--num_timesteps {args.num_timesteps} is below the budget of {out} ({cfg_path}: "
                          f"num_timesteps={budget}); --resume can extend a run, not shorten it")
     target = max(budget, args.num_timesteps or 0)
-    exported = exported_budget(out)
+    exported = rundir.exported_budget(out)
     if exported is not None and exported >= target:
         raise UsageError(f"run {out} is complete (its export.json is at {exported} env steps); nothing to resume; "
                          f"extend it with --resume --num_timesteps N, N > {exported}")
@@ -383,108 +269,8 @@ def prepare_resume(args):
     if ckpt.latest_step() is None:
         raise UsageError(f"cannot resume: {out} holds no checkpoint (nothing in {ckpt.directory}); "
                          "start the run again with a new --out")
-    overrides = {} if run["episode_length"] is None else {"episode_length": int(run["episode_length"])}
-    env = tasks.make(run["task"], physics=run["physics"], **overrides)
-    return out, dict(run, num_timesteps=target), resolved, env
-
-
-# ----------------------------------------------------------------------------- one process per run
-
-_LOCKS: dict = {}  # run directory -> its locked file descriptor (held while training)
-
-
-def lock_run_dir(out) -> None:
-    """Lock the directory ``out`` exclusively (``flock``: released when the process ends, SIGKILL included),
-    so that a second ``training.run`` on the same directory is refused instead of interleaving its
-    checkpoints and metrics with the first's."""
-    try:
-        import fcntl
-    except ImportError:  # (not POSIX: no lock)
-        return
-    key = os.path.abspath(out)
-    if key in _LOCKS:
-        return
-    fd = os.open(out, os.O_RDONLY)  # the directory itself: nothing is written
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        os.close(fd)
-        raise UsageError(f"run directory {out} is in use by another training.run process; wait for it to end "
-                         "or stop it, then --resume") from None
-    _LOCKS[key] = fd
-
-
-def unlock_run_dir(out) -> None:
-    fd = _LOCKS.pop(os.path.abspath(out), None)
-    if fd is not None:
-        os.close(fd)
-
-
-# ----------------------------------------------------------------------------- extending
-
-# What a finished run writes (besides metrics.csv, events and checkpoints, which an extension continues).
-FINAL_OUTPUTS = ("export.json", "export.npz", "new_skill.json", "new_skill.npz", "curves.png", "skill_usage.png",
-                 "new_skill.mp4", "new_skill.gif")
-
-
-def exported_budget(out):
-    """The ``num_timesteps`` of ``out``'s export.json (the budget the run finished), None without one."""
-    path = os.path.join(out, "export.json")
-    if not os.path.exists(path):
-        return None
-    try:
-        with open(path) as f:
-            data = json.load(f)
-        return int((data.get("metadata") or {}).get("num_timesteps", data["env_steps"]))
-    except (OSError, ValueError, KeyError, TypeError):
-        raise UsageError(f"cannot resume: {path} is unreadable; a run killed while exporting leaves no "
-                         "export.json, so this one was changed by hand") from None
-
-
-def archive_dir(out, budget: int) -> str:
-    return os.path.join(out, f"before_extension_{budget}")
-
-
-def extend_run(out, run, argv):
-    """Make ``out`` (config.json at a smaller budget, maybe finished) continue to ``run["num_timesteps"]``.
-
-    Crash-safe in three idempotent steps: the finished run's outputs (``FINAL_OUTPUTS``) are copied
-    to ``out/before_extension_<budget>/`` (a temporary directory renamed into place); config.json is
-    rewritten with the new budget and an ``extensions`` entry; the outputs are removed, export.json
-    last (until it goes, a resume sees an unfinished extension and redoes the steps).
-    Training then continues from the latest checkpoint as an uninterrupted run of the larger budget
-    would: the state at the old budget is the same (evaluations do not change it)."""
-    import shutil
-
-    cfg_path = os.path.join(out, "config.json")
-    with open(cfg_path) as f:
-        stored = json.load(f)
-    old, new = int(stored["num_timesteps"]), int(run["num_timesteps"])
-    exported = exported_budget(out)
-    if new == old and exported is None:
-        return  # a plain resume
-    if exported is not None:
-        dst = archive_dir(out, exported)
-        if not os.path.isdir(dst):
-            tmp = dst + ".tmp"
-            shutil.rmtree(tmp, ignore_errors=True)
-            os.makedirs(tmp)
-            for name in FINAL_OUTPUTS:
-                if os.path.isfile(os.path.join(out, name)):
-                    shutil.copy2(os.path.join(out, name), os.path.join(tmp, name))
-            os.replace(tmp, dst)
-    if new != old:
-        stored["num_timesteps"] = new
-        stored.setdefault("extensions", []).append({"from": old, "to": new, "command": _command(argv)})
-        run["extensions"] = stored["extensions"]
-        write_json_atomic(cfg_path, stored, indent=2, default=str)
-    for name in FINAL_OUTPUTS:
-        if os.path.isfile(os.path.join(out, name)) and name != "export.json":
-            os.remove(os.path.join(out, name))
-    if exported is not None:
-        os.remove(os.path.join(out, "export.json"))
-    print(f"extending {out}: {old:,} -> {new:,} env steps"
-          + (f"; its outputs at {exported:,} are kept in {archive_dir(out, exported)}" if exported else ""))
+    env = tasks.make(run.task, physics=run.physics, **run.env_overrides())
+    return out, dataclasses.replace(run, num_timesteps=target), resolved, env
 
 
 # ----------------------------------------------------------------------------- running
@@ -530,13 +316,13 @@ def main(argv=None):
     args = build_parser().parse_args(argv)
     enable_compilation_cache()
     out, run, resolved, env = main_guard(lambda: prepare_resume(args) if args.resume else prepare_new(args, argv))
-    main_guard(lambda: lock_run_dir(out))
+    main_guard(lambda: rundir.lock(out))
     try:
         if args.resume:
-            extend_run(out, run, argv)
-        _train(out, run, resolved, env, resume=args.resume, video=args.video or bool(run.get("video")))
+            rundir.extend(out, run, _command(argv))
+        _train(out, run, resolved, env, resume=args.resume, video=args.video or run.video)
     finally:
-        unlock_run_dir(out)
+        rundir.unlock(out)
 
 
 def skill_sources(skills, physics: str) -> list[dict]:
@@ -544,7 +330,7 @@ def skill_sources(skills, physics: str) -> list[dict]:
     same skills): ``{"name", "source": "scripted"}``; ``{"name", "source": "library", "library":
     checkpoints/ subdirectory, "sha256"}`` (no machine path: resolved in the repository at
     evaluation); ``{"name", "source": "skill_dir", "path": as given, "sha256"}``."""
-    from tasks.manipulation.skill_sets import library_dir
+    from training.skill_library import library_dir
     from training.export import file_sha256
 
     out = []
@@ -559,52 +345,54 @@ def skill_sources(skills, physics: str) -> list[dict]:
     return out
 
 
-def _train(out, run, resolved, env, resume: bool, video: bool = False):
-    from parallel_skills import Skill, train
-    from parallel_skills.normalization import std as norm_std
-    from tasks.manipulation import skill_sets
-    from training.checkpointing import Checkpointer, CheckpointError, abstract_training_state
-    from training.export import write_export
+def _restore(out, ckpt, csv_path, env, skills, resolved, seed: int):
+    """The checkpointed (state, host state) of a resumed run; metrics.csv is cut back to the rows the
+    checkpoint covers and a half-written export is removed."""
+    from training.checkpointing import CheckpointError, abstract_training_state
 
-    names = list(run["skills"])
-    skills = main_guard(lambda: skill_sets.load_skills(names, run["physics"], run.get("skill_source", "scripted"),
+    abstract, fresh_replay = abstract_training_state(env, skills, resolved, seed)
+    try:
+        state, host = ckpt.restore(abstract, fresh_replay)
+    except CheckpointError as e:
+        raise UsageError(f"cannot resume: {e}") from None
+    if not all(k in host for k in ("csv_bytes", "csv_rows", "env_steps")):
+        raise UsageError(f"cannot resume: the checkpoint in {ckpt.directory} was not written by training.run")
+    size = os.path.getsize(csv_path) if os.path.isfile(csv_path) else -1
+    if size < int(host["csv_bytes"]):
+        raise UsageError(f"cannot resume: {csv_path} is {'missing' if size < 0 else f'{size} bytes'}, "
+                         f"the checkpoint covers its first {host['csv_bytes']} bytes")
+    with open(csv_path, "r+b") as f:  # drop the rows written after the checkpoint
+        f.truncate(int(host["csv_bytes"]))
+    stale = os.path.join(out, "export.npz")  # an export killed before its export.json: redone at the end
+    if os.path.exists(stale):
+        os.remove(stale)
+    print(f"resuming {out} from its checkpoint at iteration {host['iteration']} "
+          f"({host['env_steps']:,} env steps, {host['csv_rows']} metrics rows)"
+          + ("" if host.get("replay_saved", True) else "; the checkpoint holds no replay: "
+             "the buffer starts empty"))
+    return state, host
+
+
+def _train(out, run, resolved, env, resume: bool, video: bool = False):
+    from parallel_skills import train
+    from training import skill_library
+    from training.checkpointing import Checkpointer
+
+    names = list(run.skills)
+    skills = main_guard(lambda: skill_library.load_skills(names, run.physics, run.skill_source,
                                                        env.observation_size, env.action_size,
-                                                       skill_dir=run.get("skill_dir")))
-    seed, num_timesteps = int(run["seed"]), int(run["num_timesteps"])
-    ckpt = Checkpointer(out, save_replay=run["replay_checkpoint"])
+                                                       skill_dir=run.skill_dir))
+    seed, num_timesteps = int(run.seed), int(run.num_timesteps)
+    ckpt = Checkpointer(out, save_replay=run.replay_checkpoint)
     csv_path = os.path.join(out, "metrics.csv")
     initial_state = host_state = None
-
     if resume:
-        def restore():
-            abstract, fresh_replay = abstract_training_state(env, skills, resolved, seed)
-            try:
-                state, host = ckpt.restore(abstract, fresh_replay)
-            except CheckpointError as e:
-                raise UsageError(f"cannot resume: {e}") from None
-            if not all(k in host for k in ("csv_bytes", "csv_rows", "env_steps")):
-                raise UsageError(f"cannot resume: the checkpoint in {ckpt.directory} was not written by training.run")
-            size = os.path.getsize(csv_path) if os.path.isfile(csv_path) else -1
-            if size < int(host["csv_bytes"]):
-                raise UsageError(f"cannot resume: {csv_path} is {'missing' if size < 0 else f'{size} bytes'}, "
-                                 f"the checkpoint covers its first {host['csv_bytes']} bytes")
-            return state, host
-
-        initial_state, host_state = main_guard(restore)
-        with open(csv_path, "r+b") as f:  # drop the rows written after the checkpoint
-            f.truncate(int(host_state["csv_bytes"]))
-        stale = os.path.join(out, "export.npz")  # an export killed before its export.json: redone below
-        if os.path.exists(stale):
-            os.remove(stale)
-        print(f"resuming {out} from its checkpoint at iteration {host_state['iteration']} "
-              f"({host_state['env_steps']:,} env steps, {host_state['csv_rows']} metrics rows)"
-              + ("" if host_state.get("replay_saved", True) else "; the checkpoint holds no replay: "
-                 "the buffer starts empty"))
+        initial_state, host_state = main_guard(lambda: _restore(out, ckpt, csv_path, env, skills, resolved, seed))
     else:
         print(f"run dir: {out}")
-    print(f"task={run['task']} physics={run['physics']} method={resolved.method} skills={names or '(none)'}")
-    if run.get("auto") and not resume:  # (train() gets the resolved config: it has nothing to choose)
-        print("CPU backend: smaller defaults chosen automatically: " + ", ".join(run["auto"]))
+    print(f"task={run.task} physics={run.physics} method={resolved.method} skills={names or '(none)'}")
+    if run.auto and not resume:  # (train() gets the resolved config: it has nothing to choose)
+        print("CPU backend: smaller defaults chosen automatically: " + ", ".join(run.auto))
 
     t0 = time.perf_counter()
     start_steps = int(host_state["env_steps"]) if host_state else 0
@@ -641,33 +429,42 @@ def _train(out, run, resolved, env, resume: bool, video: bool = False):
         make_policy, params, metrics = train(
             env, skills, num_timesteps=num_timesteps, seed=seed, config=resolved, progress_fn=progress,
             initial_state=initial_state, host_state=host_state, checkpoint_fn=checkpoint,
-            checkpoint_every=run["checkpoint_every"], step_fn=bar.advance, auto_config=False)
+            checkpoint_every=run.checkpoint_every, step_fn=bar.advance, auto_config=False)
     bar.close()
     tb.close()
     ckpt.close()
 
+    _write_outputs(out, run, resolved, env, skills, make_policy, params, metrics, video, time.perf_counter() - t0)
+
+def _write_outputs(out, run, resolved, env, skills, make_policy, params, metrics, video: bool, seconds: float):
+    """The finished run's new skill (``new_skill.npz``), plots, video and ``export.npz``."""
+    from parallel_skills import Skill
+    from parallel_skills.normalization import std as norm_std
+    from training.export import write_export
+
+    names, seed, num_timesteps = list(run.skills), int(run.seed), int(run.num_timesteps)
     stats = params["normalizer"]
     skill = Skill.gaussian_mlp(
-        f"{run['task']}_new_skill", {"policy": params["new_skill"], "obs_mean": stats.mean, "obs_std": norm_std(stats)},
+        f"{run.task}_new_skill", {"policy": params["new_skill"], "obs_mean": stats.mean, "obs_std": norm_std(stats)},
         env.action_size, resolved.new_skill.hidden)
-    skill.save(os.path.join(out, "new_skill.npz"), obs_size=int(env.observation_size), task=run["task"],
-               physics=run["physics"], seed=seed, command=run["command"],
+    skill.save(os.path.join(out, "new_skill.npz"), obs_size=int(env.observation_size), task=run.task,
+               physics=run.physics, seed=seed, command=run.command,
                success=metrics["eval/new_skill_success"], trained_with=names, env_steps=metrics["env_steps"])
     print(f"new skill saved: {os.path.join(out, 'new_skill.npz')}  ({metrics['env_steps']:,} env steps, "
-          f"{time.perf_counter() - t0:.0f} s)")
+          f"{seconds:.0f} s)")
     _write_plots(out)
     if video:
-        _write_video(out, env, make_policy, params, seed, int(run.get("episode_length") or 0) or None)
-    meta = {"skills": names, "skill_sources": skill_sources(skills, run["physics"]), "seed": seed,
-            "env_steps": metrics["env_steps"], "command": run["command"],
-            "skill_set": run["skill_set"], "num_timesteps": num_timesteps,
+        _write_video(out, env, make_policy, params, seed, int(run.episode_length or 0) or None)
+    meta = {"skills": names, "skill_sources": skill_sources(skills, run.physics), "seed": seed,
+            "env_steps": metrics["env_steps"], "command": run.command,
+            "skill_set": run.skill_set, "num_timesteps": num_timesteps,
             "success": metrics["eval/new_skill_success"], "return": metrics["eval/new_skill_return"]}
-    if run.get("extensions"):
-        meta["extensions"] = run["extensions"]
+    if run.extensions:
+        meta["extensions"] = run.extensions
     for k in ("eval/scheduler_success", "eval/scheduler_return"):
         if k in metrics:
             meta[k.split("/")[1]] = metrics[k]
-    path = write_export(out, params, env=env, config=resolved, task=run["task"], physics=run["physics"], metadata=meta)
+    path = write_export(out, params, env=env, config=resolved, task=run.task, physics=run.physics, metadata=meta)
     print(f"export saved: {path}")
     print(f"success={metrics['eval/new_skill_success']:.4f} return={metrics['eval/new_skill_return']:.3f}")
 

@@ -4,7 +4,7 @@ library, lift X and stack X on Y, are outputs of SkillS runs, as in the paper's 
     python -m training.ship --chain runs/chain --stage lift_green
 
 Copies ``CHAIN/skills/STAGE.npz`` byte for byte to ``checkpoints/<library>/NAME.npz`` (``library``
-= ``skill_sets.library_dir(physics)``; NAME is the stage's full task name, as skill tables use it:
+= ``skill_library.library_dir(physics)``; NAME is the stage's full task name, as skill tables use it:
 ``stack`` ships as ``stack_green_on_yellow``), measures the shipped file with ``training.evaluate``
 (``--episodes`` 64, ``--seed`` 0) and writes the library sidecar: sizes and network, the chain
 command and the stage's ``training.run`` command, the skills it was trained with, its env steps and
@@ -23,7 +23,8 @@ import os
 import shutil
 import sys
 
-from training.cli import Parser, UsageError, fail, main_guard, nonnegative_int, positive_int
+from training.cli import Parser, UsageError, fail, main_guard, nonnegative_int, positive_int, write_json_atomic
+from training.rundir import RunRecord, read_record
 
 MIN_SUCCESS = {"mjx": 0.7}  # per library directory; every other library: DEFAULT_MIN_SUCCESS
 DEFAULT_MIN_SUCCESS = 0.8
@@ -59,7 +60,7 @@ def stage_files(chain: str, stage: str) -> tuple[dict, dict, str]:
     return record, stages[stage], src
 
 
-def library_sidecar(meta: dict, record: dict, stage_record: dict, run_config: dict, *, stage: str,
+def library_sidecar(meta: dict, record: dict, stage_record: dict, run_config: RunRecord, *, stage: str,
                     success: float, ret: float, episodes: int, seed: int, eval_command: str,
                     ship_command: str, wall_time_s) -> dict:
     """The library sidecar of a shipped chain skill (the fields every shipped skill has, see
@@ -70,7 +71,7 @@ def library_sidecar(meta: dict, record: dict, stage_record: dict, run_config: di
     return {
         "name": name, "task": name, "domain": "manipulation", "physics": meta["physics"],
         "obs_size": meta["obs_size"], "action_size": meta["action_size"], "hidden": meta["hidden"],
-        "min_std": run_config["train_config"]["new_skill"]["min_std"],
+        "min_std": run_config.train_config["new_skill"]["min_std"],
         "command": record["command"], "ship_command": ship_command, "seed": meta["seed"],
         "trained_with": "skills",
         "success": success, "eval_return": ret, "success_episodes": episodes, "eval_seed": seed,
@@ -78,7 +79,7 @@ def library_sidecar(meta: dict, record: dict, stage_record: dict, run_config: di
         "training": {
             "method": "SkillS (training.run): HCMPO scheduler over frozen skills + CRR new skill, sparse reward",
             "chain_stage": stage, "stage_command": stage_record.get("run_command", meta.get("stage_command")),
-            "skills": list(run_config["skills"]), "skill_set": run_config.get("skill_set"),
+            "skills": list(run_config.skills), "skill_set": run_config.skill_set,
             "env_steps": meta.get("env_steps"), "chain_success": stage_record.get("success"),
             "chain_eval_episodes": meta.get("eval_episodes"),
         },
@@ -89,7 +90,7 @@ def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=
          ship_command: str = "") -> dict:
     """Copy, evaluate, and write the sidecar (see the module docstring). Returns the sidecar."""
     from parallel_skills import Skill
-    from tasks.manipulation import skill_sets
+    from training import skill_library
     from training.chain import stage_training_wall_time
     from training.evaluate import evaluate_policy
     from tasks.manipulation.task_defs import canonical
@@ -99,11 +100,11 @@ def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=
     skill = Skill.load(src)
     meta = skill.metadata
     physics = meta.get("physics")
-    library = skill_sets.library_dir(physics)
+    library = skill_library.library_dir(physics)
     bar = MIN_SUCCESS.get(library, DEFAULT_MIN_SUCCESS) if min_success is None else float(min_success)
     default_root = root is None
     name = canonical(stage)  # the library names a stage's skill as skill tables do (stack -> stack_green_on_yellow)
-    dst = skill_sets.library_path(physics, name, root=root)
+    dst = skill_library.library_path(physics, name, root=root)
     dst_json = dst[:-4] + ".json"
     # A .npz without its sidecar and with the source's bytes is a ship killed between its two renames:
     # finished by this call. Anything else that exists is never replaced.
@@ -113,9 +114,8 @@ def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=
             raise UsageError(f"{path} already exists; remove it first to replace the shipped skill")
     run_dir = os.path.join(chain, stage)
     try:
-        with open(os.path.join(run_dir, "config.json")) as f:
-            run_config = json.load(f)
-    except (OSError, ValueError):
+        run_config = read_record(run_dir)
+    except UsageError:
         raise UsageError(f"{run_dir}/config.json is missing or unreadable (the stage's training run)") from None
     recorded = stage_record.get("success", meta.get("success"))
     if recorded is not None and recorded < bar:
@@ -139,16 +139,10 @@ def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=
                            ship_command=ship_command, wall_time_s=wall)
     side.update(arch=meta.get("arch", skill.arch), sha256=file_sha256(src))
     os.makedirs(os.path.dirname(dst), exist_ok=True)
-    _write_json(dst_json + ".tmp", side)
     shutil.copyfile(src, dst + ".tmp")
-    os.replace(dst + ".tmp", dst)
-    os.replace(dst_json + ".tmp", dst_json)
+    os.replace(dst + ".tmp", dst)  # a kill from here on leaves the orphan .npz finished above
+    write_json_atomic(dst_json, side, indent=2, sort_keys=True)
     return side
-
-
-def _write_json(path: str, data: dict) -> None:
-    with open(path, "w") as f:
-        json.dump(data, f, indent=2, sort_keys=True)
 
 
 def main(argv=None):

@@ -82,7 +82,7 @@ def build_parser():
 
 def also_eval_choices(physics: str) -> tuple[str, ...]:
     """Backends that share ``physics``' scene (the physics MJCF: mujoco, mjx, warp), other than it."""
-    from tasks.manipulation.skill_sets import library_dir
+    from training.skill_library import library_dir
 
     import tasks
 

@@ -58,20 +58,18 @@ def reference_states(env, num_envs: int, seed: int) -> dict:
 
 
 def restore(run_dir: str, step):
-    """(run config.json dict, TrainConfig, env, restored TrainingState) of checkpoint ``step``."""
+    """(the run's ``RunRecord``, TrainConfig, env, restored TrainingState) of checkpoint ``step``."""
     import tasks
-    from tasks.manipulation import skill_sets
+    from training import skill_library
     from training.checkpointing import Checkpointer, abstract_training_state
-    from training.run import _train_config_from_json
+    from training.rundir import read_record
 
-    with open(os.path.join(run_dir, "config.json")) as f:
-        run = json.load(f)
-    cfg = _train_config_from_json(run["train_config"], os.path.join(run_dir, "config.json"))
-    overrides = {} if run.get("episode_length") is None else {"episode_length": int(run["episode_length"])}
-    env = tasks.make(run["task"], physics=run["physics"], **overrides)
-    skills = skill_sets.load_skills(run["skills"], run["physics"], run.get("skill_source", "scripted"),
-                                    env.observation_size, env.action_size, skill_dir=run.get("skill_dir"))
-    abstract, fresh_replay = abstract_training_state(env, skills, cfg, int(run["seed"]))
+    run = read_record(run_dir)
+    cfg = run.config()
+    env = tasks.make(run.task, physics=run.physics, **run.env_overrides())
+    skills = skill_library.load_skills(run.skills, run.physics, run.skill_source, env.observation_size,
+                                       env.action_size, skill_dir=run.skill_dir)
+    abstract, fresh_replay = abstract_training_state(env, skills, cfg, int(run.seed))
     state, _ = Checkpointer(run_dir).restore(abstract, fresh_replay, step=step)
     return run, cfg, env, state
 
@@ -102,14 +100,14 @@ def analyse(run_dir: str, step, num_envs: int, seed: int) -> dict:
 
     run, cfg, env, ts = restore(run_dir, step)
     nc, sc = cfg.new_skill, cfg.scheduler
-    n_total, act_size = len(run["skills"]) + 1, int(env.action_size)
+    n_total, act_size = len(run.skills) + 1, int(env.action_size)
     policy, critic = learners.new_skill_networks(act_size, nc)
     sched_policy, sched_critic = learners.scheduler_networks(n_total, sc)
     norm, pp, cp = ts.normalizer, ts.new_skill.policy_params, ts.new_skill.critic_params
     states = reference_states(env, num_envs, seed)
     nobs = {k: obs_norm.normalize(norm, s.obs) for k, s in states.items()}
     res = {"run": run_dir, "iteration": int(ts.iteration), "env_steps": int(ts.env_steps),
-           "num_critics": int(nc.num_critics), "skills": list(run["skills"]) + ["new"]}
+           "num_critics": int(nc.num_critics), "skills": list(run.skills) + ["new"]}
 
     def new_skill(obs):
         return policy.apply(pp, obs_norm.normalize(norm, obs))
@@ -175,7 +173,7 @@ def analyse(run_dir: str, step, num_envs: int, seed: int) -> dict:
         qs.append(np.asarray(q_fn(np.pad(o, ((0, pad), (0, 0))), np.pad(a, ((0, pad), (0, 0)))))[:len(o)])
     q = np.concatenate(qs, 0) if qs else np.zeros((0, nc.num_critics))
     rewarded = ex["reward"] > 0
-    sparse = task_defs.TASKS[run["task"]].kind == "sparse"
+    sparse = task_defs.TASKS[run.task].kind == "sparse"
     r_max = max(float(ex["reward"].max(initial=0.0)), 1.0 if sparse else 0.0)
     bound = r_max / (1.0 - gamma)
     res["replay"] = {"size": size, "rewarded": int(rewarded.sum()), "bound": bound,

@@ -1,6 +1,7 @@
-"""Skill sets per task from the paper's App. C skill table ("useful" and "distractor" skills).
+"""Skill sets per task from the paper's App. C skill table ("useful" and "distractor" skills), and
+the skills they name, assembled for training (``load_skills``).
 
-Names refer to skills, backed either by the scripted controllers of ``scripted``
+Names refer to skills, backed either by the scripted controllers of ``tasks.manipulation.scripted``
 (``source="scripted"``) or by the shipped neural library ``checkpoints/<library_dir(physics)>/<name>.npz``
 (``source="library"``, Gaussian-MLP skills trained by ``training.train_skill``): see ``load_skills``.
 ``many_useful`` is the paper's "many useful skills" ablation: 3 seeds of each useful skill, named
@@ -11,6 +12,8 @@ from __future__ import annotations
 
 import os
 import re
+
+import checkpoints
 
 _LIFT_USEFUL = ["reach_green", "lift_arm_closed"]
 _LIFT_DISTRACT = ["reach_yellow", "reach_blue", "open_fingers", "lift_arm_open"]
@@ -40,9 +43,9 @@ TABLE["stack_green_on_yellow"] = TABLE["stack"]
 SET_NAMES = ("useful", "useful+distractors", "distractors", "many_useful")
 SOURCES = ("scripted", "library")
 MANY_SEEDS = 3  # skills per useful skill in "many_useful" (paper App. C: 3 seeds)
-# The shipped skill library: checkpoints/<library_dir(physics)>/<name>.npz + .json (repository root).
-LIBRARY_ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
-                            "checkpoints")
+# The shipped skill library: checkpoints/<library_dir(physics)>/<name>.npz + .json (package data of
+# the installed ``checkpoints`` package).
+LIBRARY_ROOT = checkpoints.library_root()
 _SEED_SUFFIX = re.compile(r"^(?P<base>.+)\.s(?P<seed>[0-9]+)$")
 
 
