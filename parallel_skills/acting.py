@@ -24,7 +24,8 @@ from parallel_skills.skills import SkillSet
 @struct.dataclass
 class ActorState:
     """Per-env acting state. env_state: batched brax State; c/i/k_idx [B] the running skill's
-    counter, index and length index; first [B] whether the next step starts an episode;
+    counter, index and length index; first [B] whether the next step must be a decision (an
+    episode starts, or the physics restarted the env: ``info["nan_reset"]``);
     ep_return / ep_success [B] of the running episode."""
 
     env_state: Any
@@ -133,6 +134,9 @@ class Actor:
         nxt = jax.vmap(self.env.step)(actor.env_state, action)
         finite = _finite(nxt.obs) & jnp.isfinite(nxt.reward)
         done = (nxt.done > 0) | ~finite
+        # A physics backend that restarted a blown-up env in place (info["nan_reset"]): the step
+        # leads from a broken state to a fresh one. Never learnt from; the scheduler decides anew.
+        nan_reset = nxt.info.get("nan_reset", jnp.zeros_like(nxt.reward)) > 0
         # Envs without a time limit of their own: wrap them (e.g. brax's EpisodeWrapper).
         truncation = nxt.info.get("truncation", jnp.zeros_like(nxt.done)) > 0
         reward = jnp.where(finite, nxt.reward, 0.0)
@@ -141,7 +145,7 @@ class Actor:
             # Time-limit truncation bootstraps from the true last observation; termination does not.
             discount=jnp.where((nxt.done > 0) & ~truncation, 0.0, 1.0).astype(jnp.float32),
             next_obs=jnp.where(finite[:, None], nxt.obs, 0.0), skill=i, k_idx=k_idx, c=c,
-            is_decision=is_decision, weight=finite.astype(jnp.float32))
+            is_decision=is_decision, weight=(finite & ~nan_reset).astype(jnp.float32))
         ep_return = actor.ep_return + reward
         ep_success = jnp.maximum(actor.ep_success, nxt.metrics.get("success", jnp.zeros_like(nxt.reward)))
         stats = StepStats(
@@ -149,7 +153,7 @@ class Actor:
             new_skill_active=(i == self.new_index).astype(jnp.float32),
             skill_runs=skill_run_ends(actor.i, actor.first, i, is_decision, done, self.num_skills_total))
         env_state = self.auto_reset(nxt, done, k_r)
-        actor = ActorState(env_state=env_state, c=c, i=i, k_idx=k_idx, first=done,
+        actor = ActorState(env_state=env_state, c=c, i=i, k_idx=k_idx, first=done | nan_reset,
                            ep_return=jnp.where(done, 0.0, ep_return), ep_success=jnp.where(done, 0.0, ep_success))
         return actor, transition, stats
 

@@ -173,6 +173,37 @@ class TrainConfig:
         return int(self.num_envs) * int(self.unroll_length)
 
 
+def updates_per_iteration(samples_per_insert: float, num_inserted: int, batch_size: int) -> int:
+    """Learner updates per collect iteration (docs/design.md "Defaults"):
+    round(spi · inserted / batch_size), at least 1."""
+    return max(1, int(round(samples_per_insert * num_inserted / batch_size)))
+
+
+def learner_schedule(config: TrainConfig) -> dict:
+    """What a resolved config makes the learners do per iteration: for each learner its batch
+    size, updates per iteration and sampled rows per collected env step (the scheduler's batch is
+    augmented to twice its rows: counted once, as samples-per-insert counts it). From scratch the
+    scheduler does not learn (0 updates)."""
+    steps = config.steps_per_iteration
+    out = {"env_steps_per_iteration": steps}
+    for name in ("scheduler", "new_skill"):
+        sub = getattr(config, name)
+        n = updates_per_iteration(sub.samples_per_insert, steps, sub.batch_size)
+        if name == "scheduler" and config.method != "skills":
+            n = 0
+        out[name] = {"batch_size": sub.batch_size, "updates_per_iteration": n,
+                     "samples_per_env_step": round(n * sub.batch_size / steps, 3)}
+    return out
+
+
+def describe_schedule(schedule: dict) -> str:
+    """One line for the log: ``learner_schedule`` in words."""
+    parts = [f"{name.replace('_', '-')} batch {s['batch_size']} x {s['updates_per_iteration']} updates "
+             f"({s['samples_per_env_step']:g} samples per env step)"
+             for name, s in ((n, schedule[n]) for n in ("scheduler", "new_skill"))]
+    return (f"learners per iteration of {schedule['env_steps_per_iteration']:,} env steps: " + "; ".join(parts))
+
+
 # ----------------------------------------------------------------------------- device defaults
 
 # The CPU recipe (docs/learning.md: with it, kinematic lift from the useful skills reaches 0.91 at

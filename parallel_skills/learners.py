@@ -88,12 +88,6 @@ def _learner_step(state, grads, config, update_duals: bool):
         dual_params=new_dual, dual_opt_state=dual_opt_state, steps=steps)
 
 
-def updates_per_iteration(samples_per_insert: float, num_inserted: int, batch_size: int) -> int:
-    """Learner updates per collect iteration (docs/design.md "Defaults"):
-    round(spi · inserted / batch_size), at least 1."""
-    return max(1, int(round(samples_per_insert * num_inserted / batch_size)))
-
-
 @flax.struct.dataclass
 class LearnerState:
     """A learner's networks, their targets, optimiser states and MPO duals (both learners)."""

@@ -27,7 +27,7 @@ from flax import struct
 from parallel_skills import learners, networks
 from parallel_skills import normalization as obs_norm
 from parallel_skills.acting import Actor, ActorState, StepStats
-from parallel_skills.config import TrainConfig, resolve
+from parallel_skills.config import TrainConfig, resolve, updates_per_iteration
 from parallel_skills.evaluation import rollout_episodes
 from parallel_skills.replay import PendingStep, Replay, Transition
 from parallel_skills.skills import Skill, SkillSet
@@ -137,8 +137,8 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
     obs_size, action_size = int(environment.observation_size), int(environment.action_size)
     learn_scheduler = config.method == "skills"
     steps_per_iter = config.steps_per_iteration
-    n_sched = learners.updates_per_iteration(sc.samples_per_insert, steps_per_iter, sc.batch_size)
-    n_new = learners.updates_per_iteration(nc.samples_per_insert, steps_per_iter, nc.batch_size)
+    n_sched = updates_per_iteration(sc.samples_per_insert, steps_per_iter, sc.batch_size)
+    n_new = updates_per_iteration(nc.samples_per_insert, steps_per_iter, nc.batch_size)
     actor = make_actor(environment, skills, config, config.num_envs)
     replay = make_replay(environment, config)
 

@@ -192,8 +192,13 @@ def test_config_file_fields_and_the_cpu_recipe(ws):
     argv = ["--config", str(ws / "nstep.json"), "--num_timesteps", "100", "--out", str(out)]
     prepare_new(build_parser().parse_args(argv), argv)
     with open(out / "config.json") as f:
-        new_skill = json.load(f)["train_config"]["new_skill"]
+        record = json.load(f)
+    new_skill = record["train_config"]["new_skill"]
     assert new_skill["n_step"] == 2 and new_skill["samples_per_insert"] == 64.0 and new_skill["crr_mode"] == "indicator"
+    # The learners' batches and updates per iteration are recorded: 32 envs x 5 steps = 160 per iteration.
+    assert record["learners"]["env_steps_per_iteration"] == 160
+    assert record["learners"]["new_skill"] == {"batch_size": 256, "updates_per_iteration": 40,
+                                               "samples_per_env_step": 64.0}
 
 
 def test_resume_without_checkpoint_and_conflicting_flags(ws, fresh_run, capsys):

@@ -6,10 +6,9 @@ import jax.numpy as jnp
 import pytest
 
 from parallel_skills.augmentation import with_augmentation
-from parallel_skills.config import NewSkillConfig, SchedulerConfig
+from parallel_skills.config import NewSkillConfig, SchedulerConfig, updates_per_iteration
 from parallel_skills.learners import (make_new_skill_apply, make_scheduler_apply, new_skill_learner_init,
-                                      new_skill_learner_update, scheduler_learner_init, scheduler_learner_update,
-                                      updates_per_iteration)
+                                      new_skill_learner_update, scheduler_learner_init, scheduler_learner_update)
 from parallel_skills.replay import Transition
 
 O, A, N1, K, B = 6, 2, 3, (2, 4), 16

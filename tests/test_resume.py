@@ -211,7 +211,7 @@ def test_a_run_in_use_by_another_process_is_refused(uninterrupted, capsys):
     second is refused (one line, exit 2) while the first holds DIR's lock, and nothing is changed."""
     tmp, run_a = uninterrupted
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time; from training.run import lock_run_dir; lock_run_dir(sys.argv[1]); "
+        [sys.executable, "-c", "import sys, time; from training.rundir import lock; lock(sys.argv[1]); "
                                "print('locked', flush=True); time.sleep(120)", run_a],
         cwd=ROOT, env=dict(os.environ, PYTHONPATH=ROOT), stdout=subprocess.PIPE, text=True)
     try:

@@ -156,6 +156,37 @@ def test_nonfinite_transitions_are_masked():
     assert (w == 0).sum() == 4 * 5
 
 
+def test_nan_reset_steps_are_dropped_and_force_a_decision(small_trainer):
+    """A physics backend that restarted a blown-up env in place (``info["nan_reset"]``, as the MuJoCo
+    and MJX envs do) stored that step as weight 0 and makes the scheduler decide at the next one."""
+    from brax.envs.base import Wrapper
+
+    class Restarting(Wrapper):
+        def reset(self, rng):
+            state = self.env.reset(rng)
+            return state.replace(info=dict(state.info, nan_reset=jnp.zeros(())))
+
+        def step(self, state, action):
+            nxt = self.env.step(state, action)
+            return nxt.replace(info=dict(nxt.info, nan_reset=(nxt.info["steps"] == 3).astype(jnp.float32)))
+
+    _, trainer, init, _ = small_trainer
+    env = Restarting(tasks.make("lift", episode_length=7))
+    actor = dataclasses.replace(trainer.actor, env=env)
+    state = init(jax.random.PRNGKey(0))
+    step = jax.jit(actor.step)
+    a = actor.reset(jax.random.PRNGKey(1))
+    for t in range(6):
+        a, tr, st = step(a, state.scheduler.policy_params, state.new_skill.policy_params, state.normalizer,
+                         jax.random.PRNGKey(t))
+        restarted = t == 2  # the env's 3rd step
+        np.testing.assert_array_equal(np.asarray(tr.weight), 0.0 if restarted else 1.0)
+        np.testing.assert_array_equal(np.asarray(a.first), restarted)  # the next step decides
+        if t == 3:
+            assert np.asarray(tr.is_decision).all()
+        assert not np.asarray(st.done).any()  # the episode goes on
+
+
 def test_cpu_recipe_applies_only_to_learner_configs_left_at_paper_defaults():
     from parallel_skills.config import CPU_DEFAULTS, resolve
 
@@ -207,3 +238,16 @@ def test_training_episode_stats_are_nan_when_no_episode_ended():
     assert "train_success=n/a" in Progress.line(100, 1.0, out)
     acc.add(dict(m, episodes=np.float32(2.0), episode_success=np.float32(0.5)))
     assert acc.summary({})["episode_success"] == 0.5
+
+
+def test_learner_schedule_of_the_cpu_recipe():
+    """What training.run prints and records in config.json ("learners")."""
+    from parallel_skills.config import describe_schedule, learner_schedule, resolve
+
+    cfg, _ = resolve(TrainConfig(), backend="cpu")
+    s = learner_schedule(cfg)
+    assert s["env_steps_per_iteration"] == 32 * 25
+    assert s["scheduler"] == {"batch_size": 128, "updates_per_iteration": 50, "samples_per_env_step": 8.0}
+    assert s["new_skill"] == {"batch_size": 256, "updates_per_iteration": 200, "samples_per_env_step": 64.0}
+    assert learner_schedule(dataclasses.replace(cfg, method="scratch"))["scheduler"]["updates_per_iteration"] == 0
+    assert "scheduler batch 128 x 50 updates" in describe_schedule(s)

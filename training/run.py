@@ -158,7 +158,7 @@ def prepare_new(args, argv):
         raise UsageError(f"unknown skill set {a['skills']!r}; valid: {', '.join(skill_library.SET_NAMES)}")
 
     from parallel_skills import TrainConfig
-    from parallel_skills.config import dotted_names, resolve
+    from parallel_skills.config import dotted_names, learner_schedule, resolve
 
     cfg = TrainConfig(eval_episodes=DEFAULTS["eval_episodes"])
     file_data = {}
@@ -201,7 +201,8 @@ def prepare_new(args, argv):
         skill_source=a["skill_source"], skill_dir=skill_dir, skills=names, seed=a["seed"],
         num_timesteps=num_timesteps, episode_length=int(getattr(env, "episode_length", 0)) or args.episode_length,
         checkpoint_every=args.checkpoint_every, replay_checkpoint=not args.no_replay_checkpoint,
-        video=bool(args.video), train_config=dataclasses.asdict(resolved), auto=notes)
+        video=bool(args.video), train_config=dataclasses.asdict(resolved), auto=notes,
+        learners=learner_schedule(resolved))
     rundir.create(out, run)
     return out, run, resolved, env
 
@@ -375,6 +376,7 @@ def _restore(out, ckpt, csv_path, env, skills, resolved, seed: int):
 
 def _train(out, run, resolved, env, resume: bool, video: bool = False):
     from parallel_skills import train
+    from parallel_skills.config import describe_schedule, learner_schedule
     from training import skill_library
     from training.checkpointing import Checkpointer
 
@@ -393,6 +395,7 @@ def _train(out, run, resolved, env, resume: bool, video: bool = False):
     print(f"task={run.task} physics={run.physics} method={resolved.method} skills={names or '(none)'}")
     if run.auto and not resume:  # (train() gets the resolved config: it has nothing to choose)
         print("CPU backend: smaller defaults chosen automatically: " + ", ".join(run.auto))
+    print(describe_schedule(learner_schedule(resolved)))
 
     t0 = time.perf_counter()
     start_steps = int(host_state["env_steps"]) if host_state else 0

@@ -44,6 +44,9 @@ class RunRecord:
     video: bool
     train_config: dict
     auto: list = dataclasses.field(default_factory=list)  # what resolve() chose, as logged
+    # Batch sizes, updates per iteration and samples per env step of both learners
+    # (parallel_skills.config.learner_schedule); None in records from before the field.
+    learners: Optional[dict] = None
     extensions: list = dataclasses.field(default_factory=list)  # {"from", "to", "command"} per extension
 
     REQUIRED = ("task", "physics", "skills", "seed", "num_timesteps", "train_config")
@@ -64,6 +67,8 @@ class RunRecord:
         data = dataclasses.asdict(self)
         if not self.extensions:  # (records of unextended runs have no such key)
             del data["extensions"]
+        if self.learners is None:
+            del data["learners"]
         return data
 
     def config(self, where: str = CONFIG_JSON):
