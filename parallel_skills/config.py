@@ -26,7 +26,10 @@ POSITIVE_FIELDS = frozenset({
 
 def check_ranges(config) -> None:
     """The range rule of every config class: integer fields ≥ 1 (``POSITIVE_FIELDS``) or ≥ 0, float
-    fields finite. ValueError naming the field."""
+    fields finite, ``target_tau`` in [0, 1]. ValueError naming the field."""
+    tau = getattr(config, "target_tau", 0.0)
+    if not 0.0 <= tau <= 1.0:
+        raise ValueError(f"target_tau must be in [0, 1] (0: periodic hard copies), got {tau}")
     for f in dataclasses.fields(config):
         value = getattr(config, f.name)
         if isinstance(value, bool) or value is None:
@@ -54,6 +57,10 @@ class SchedulerConfig:
     samples_per_insert: float = 100.0
     target_actor_period: int = 100
     target_critic_period: int = 25
+    # 0: target networks are hard copies every target_*_period updates (the paper). τ in (0, 1]:
+    # Polyak averaging after every update, θ' ← τ·θ + (1 − τ)·θ' (FastTD3: 0.1); the periods are
+    # then unused.
+    target_tau: float = 0.0
     epsilon: float = 0.1  # E-step KL bound (temperature dual).
     epsilon_kl: float = 5e-3  # M-step categorical KL(π_old ‖ π) trust region.
     discount: float = 0.99
@@ -97,6 +104,7 @@ class NewSkillConfig:
     samples_per_insert: float = 50.0
     target_actor_period: int = 25
     target_critic_period: int = 100
+    target_tau: float = 0.0  # as SchedulerConfig.target_tau
     discount: float = 0.99
     crr_mode: str = "exp"  # "exp": min(exp(A/β), clip); "indicator": 1[A > 0].
     crr_beta: float = 1.0

@@ -27,7 +27,8 @@ Acme's MPO learner. Batches are ``replay.Transition`` rows; both learners share 
 ``LearnerState``.
 
 Target networks are hard copies every ``target_actor_period`` / ``target_critic_period``
-learner steps (``optax.periodic_update``; after update n (1-based), copied when n % period == 0).
+learner steps (``optax.periodic_update``; after update n (1-based), copied when n % period == 0),
+or, with ``target_tau`` > 0, Polyak averages updated after every step (``optax.incremental_update``).
 """
 
 from __future__ import annotations
@@ -78,12 +79,17 @@ def _learner_step(state, grads, config, update_duals: bool):
     else:
         new_dual, dual_opt_state = state.dual_params, state.dual_opt_state
     steps = state.steps + 1
+    if config.target_tau > 0:  # Polyak averaging after every update
+        target_policy = optax.incremental_update(new_policy, state.target_policy_params, config.target_tau)
+        target_critic = optax.incremental_update(new_critic, state.target_critic_params, config.target_tau)
+    else:  # hard copies every period (the paper)
+        target_policy = optax.periodic_update(new_policy, state.target_policy_params, steps,
+                                              config.target_actor_period)
+        target_critic = optax.periodic_update(new_critic, state.target_critic_params, steps,
+                                              config.target_critic_period)
     return state.replace(
         policy_params=new_policy, critic_params=new_critic,
-        target_policy_params=optax.periodic_update(new_policy, state.target_policy_params, steps,
-                                                   config.target_actor_period),
-        target_critic_params=optax.periodic_update(new_critic, state.target_critic_params, steps,
-                                                   config.target_critic_period),
+        target_policy_params=target_policy, target_critic_params=target_critic,
         policy_opt_state=policy_opt_state, critic_opt_state=critic_opt_state,
         dual_params=new_dual, dual_opt_state=dual_opt_state, steps=steps)
 

@@ -1,3 +1,4 @@
+import dataclasses
 import functools
 
 import numpy as np
@@ -208,3 +209,26 @@ def test_vmap_over_seeds():
 def test_updates_per_iteration():
     assert updates_per_iteration(50, 16 * 10, 256) == 31
     assert updates_per_iteration(1, 4, 256) == 1
+
+
+def test_polyak_targets():
+    """target_tau > 0: after every update θ' ← τ·θ + (1 − τ)·θ' (checked against the previous target
+    and the new online parameters); τ = 1 makes the targets the online networks."""
+    cfg = NewSkillConfig(hidden=(32, 32), target_tau=0.25)
+    state = new_skill_learner_init(jax.random.PRNGKey(0), O, A, cfg)
+    batch = _new_skill_batch(jax.random.PRNGKey(1))
+    update = jax.jit(functools.partial(new_skill_learner_update, config=cfg))
+    s1, _ = update(state, batch, jax.random.PRNGKey(2))
+    s2, _ = update(s1, batch, jax.random.PRNGKey(3))
+    for old, online, new in zip(*(jax.tree_util.tree_leaves(t) for t in (
+            s1.target_critic_params, s2.critic_params, s2.target_critic_params))):
+        np.testing.assert_allclose(new, 0.25 * online + 0.75 * old, rtol=1e-5, atol=1e-7)
+    assert not all(np.array_equal(a, b) for a, b in zip(jax.tree_util.tree_leaves(s2.target_critic_params),
+                                                          jax.tree_util.tree_leaves(s2.critic_params)))
+    s_one, _ = jax.jit(functools.partial(scheduler_learner_update, config=dataclasses.replace(SCFG, target_tau=1.0)))(
+        scheduler_learner_init(jax.random.PRNGKey(0), O, N1, SCFG), _scheduler_batch(jax.random.PRNGKey(1)),
+        jax.random.PRNGKey(2))
+    for a, b in zip(jax.tree_util.tree_leaves(s_one.target_policy_params), jax.tree_util.tree_leaves(s_one.policy_params)):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="target_tau must be in"):
+        NewSkillConfig(target_tau=1.5)
