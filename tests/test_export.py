@@ -290,3 +290,35 @@ def test_numpy_skill_load_checks_sizes(exported, tmp_path):
     json.dump(dict(meta, hidden=[16, 32]), open(tmp_path / "s.json", "w"))  # sidecar disagrees with the arrays
     with pytest.raises(ValueError, match="has shape"):
         NumpyGaussianPolicy.load(skill_path)
+
+
+def test_evaluate_a_run_directory_and_a_library_skill(exported, tmp_path, capsys):
+    """``--policy DIR`` (a training.run directory: its export, ``DIR:scheduler`` too) and
+    ``--policy library:NAME`` (a shipped skill, found through the installed package)."""
+    import json
+    import shutil
+
+    from training.rundir import RunRecord, create
+
+    path, _ = exported
+    run = tmp_path / "run"
+    record = RunRecord(command="test", task="lift", physics="kinematic", skill_set="useful", skill_source="scripted",
+                       skill_dir=None, skills=SKILLS, seed=0, num_timesteps=1, episode_length=None,
+                       checkpoint_every=None, replay_checkpoint=True, video=False, train_config={})
+    create(str(run), record)
+    assert json.loads((run / "config.json").read_text())["skills"] == SKILLS
+    base = ["--task", "lift", "--physics", "kinematic", "--episodes", "2", "--episode_length", "5", "--policy"]
+    assert "has not finished" in _bad(base + [str(run)], capsys)
+    for name in ("export.npz", "export.json"):
+        shutil.copy(os.path.join(os.path.dirname(path), name), run / name)
+    for suffix in ("", ":scheduler"):
+        evaluate.main(base + [str(run) + suffix])
+        by_dir = capsys.readouterr().out.strip().splitlines()[-1]
+        evaluate.main(base + [path + suffix])
+        assert capsys.readouterr().out.strip().splitlines()[-1] == by_dir
+    evaluate.main(base + ["library:reach_green"])
+    by_name = capsys.readouterr().out.strip().splitlines()[-1]
+    evaluate.main(base + [os.path.join(ROOT, "checkpoints", "kinematic", "reach_green.npz")])
+    assert capsys.readouterr().out.strip().splitlines()[-1] == by_name
+    err = _bad(base + ["library:no_such_skill"], capsys)
+    assert "no skill 'no_such_skill' in the kinematic library" in err and "reach_green" in err

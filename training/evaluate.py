@@ -13,6 +13,7 @@
 * ``PATH.npz``: a Gaussian-MLP skill with its JSON sidecar (``Skill.save``, e.g. ``new_skill.npz``);
 * ``DIR/export.npz`` (or ``DIR/export.npz:new_skill``): an export's new skill alone
   (``training.export``);
+* ``DIR`` (a ``training.run`` directory; ``DIR:scheduler``): its ``export.npz``, as below;
 * ``DIR/export.npz:scheduler``: the export's scheduler sequencing the skills recorded in it (each
   from where the run took it: scripted controller, shipped library or ``--skill_dir`` file, checked
   against the file's recorded SHA-256; and the new skill) with its counters: it picks (i, k)
@@ -40,6 +41,18 @@ def parse_policy(spec: str, physics: str = "kinematic") -> tuple[str, str, str |
     ``library:NAME`` is the shipped skill NAME of ``physics``'s library (wherever the package is installed)."""
     if spec.startswith("scripted:"):
         return "scripted", spec.split(":", 1)[1], None
+    run_dir, sep, suffix = spec.rpartition(":")
+    if not (sep and suffix in EXPORT_SUFFIXES and os.path.isdir(run_dir)):
+        run_dir, suffix = spec, None
+    if os.path.isdir(run_dir):  # a training.run directory: its export (the finished run)
+        from training.rundir import read_record
+
+        read_record(run_dir, f"--policy {spec}")
+        export = os.path.join(run_dir, "export.npz")
+        if not os.path.isfile(export):
+            raise UsageError(f"run {run_dir} has no export.npz: it has not finished; resume it with "
+                             f"python -m training.run --resume --out {run_dir}")
+        spec = export + (f":{suffix}" if suffix else "")
     if spec.startswith("library:"):
         from training.skill_library import library_dir, library_path
 
@@ -232,7 +245,8 @@ def main(argv=None):
     p.add_argument("--task", default="lift", help="task name (see tasks.names())")
     p.add_argument("--physics", default="kinematic", help=f"one of {', '.join(tasks.PHYSICS)}")
     p.add_argument("--policy", required=True,
-                   help="scripted:NAME, library:NAME (a shipped skill), a skill PATH.npz, DIR/export.npz (the new skill alone) or "
+                   help="scripted:NAME, library:NAME (a shipped skill), a skill PATH.npz, a run directory DIR "
+                        "(its export; DIR:scheduler), DIR/export.npz (the new skill alone) or "
                         "DIR/export.npz:scheduler (the scheduler running the export's skills). With --physics "
                         "mujoco the .npz policies import no JAX (NumPy + classic MuJoCo), except :scheduler, "
                         "whose scripted skills are JAX functions")
