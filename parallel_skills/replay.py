@@ -69,9 +69,13 @@ class Transition:
                    is_decision=jnp.zeros((b,), bool) if is_decision is None else is_decision,
                    weight=jnp.ones((b,), jnp.float32) if weight is None else weight)
 
+    def fields(self) -> dict:
+        """The ``Transition`` fields of this row (a subclass's extra fields left out), by name."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(Transition)}
+
     def one_step(self) -> "Transition":
-        """The plain ``Transition`` fields (drops the subclasses' extra fields)."""
-        return Transition(**{f.name: getattr(self, f.name) for f in dataclasses.fields(Transition)})
+        """The plain ``Transition`` (drops the subclasses' extra fields)."""
+        return Transition(**self.fields())
 
 
 @struct.dataclass
@@ -123,8 +127,7 @@ class Replay:
         tr = Transition.zeros(self.obs_size, self.action_size)
         if self.n_step > 1:
             z = jnp.zeros((), jnp.float32)
-            tr = NStepTransition(**{f.name: getattr(tr, f.name) for f in dataclasses.fields(Transition)},
-                                 nstep_reward=z, nstep_discount=z, nstep_next_obs=jnp.zeros((self.obs_size,)),
+            tr = NStepTransition(**tr.fields(), nstep_reward=z, nstep_discount=z, nstep_next_obs=jnp.zeros((self.obs_size,)),
                                  nstep_weight=z)
         return self._buffer(self.scheduler_batch_size).init(tr)
 
@@ -134,8 +137,7 @@ class Replay:
         if self.n_step == 1:
             return None
         tr = Transition.zeros(self.obs_size, self.action_size, (self.n_step - 1, self.num_envs))
-        return PendingStep(**{f.name: getattr(tr, f.name) for f in dataclasses.fields(Transition)},
-                           done=jnp.ones((self.n_step - 1, self.num_envs), bool))
+        return PendingStep(**tr.fields(), done=jnp.ones((self.n_step - 1, self.num_envs), bool))
 
     def size(self, state) -> jax.Array:
         """Rows stored (int32 scalar)."""
@@ -147,13 +149,12 @@ class Replay:
         kept as the new ``pending``. Returns (state, pending)."""
         t = traj.reward.shape[0]
         if self.n_step > 1:
-            step = PendingStep(**{f.name: getattr(traj, f.name) for f in dataclasses.fields(Transition)}, done=done)
+            step = PendingStep(**traj.fields(), done=done)
             window = jax.tree.map(lambda p, x: jnp.concatenate([p, x], axis=0), pending, step)
             pending = jax.tree.map(lambda x: x[t:], window)
             head = jax.tree.map(lambda x: x[:t], window).one_step()
             fields = nstep.nstep_fields(window, self.n_step, self.discount)
-            rows = NStepTransition(**{f.name: getattr(head, f.name) for f in dataclasses.fields(Transition)},
-                                   **fields)
+            rows = NStepTransition(**head.fields(), **fields)
         else:
             rows = traj
         flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), rows)  # [T, B, ...] -> [T·B, ...]
@@ -163,7 +164,8 @@ class Replay:
         """A scheduler batch [2·batch] (originals, then their augmented duplicates) or [batch]
         without augmentation; observations normalised."""
         rows = self._buffer(self.scheduler_batch_size).sample(state, key).experience
-        batch = _normalized(rows.one_step(), normalizer)
+        # The scheduler reads no action: [B, 0], so augmentation does not copy the actions.
+        batch = _normalized(rows.one_step().replace(action=rows.action[:, :0]), normalizer)
         return with_augmentation(batch, self.skill_lengths) if self.augmentation else batch
 
     def sample_new_skill(self, state, normalizer, key) -> Transition:
