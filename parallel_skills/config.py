@@ -1,5 +1,5 @@
 """Configurations: the learners' (paper defaults, SkillS App. B.3, manipulation), the run's
-(``TrainConfig``), the CPU recipe and ``resolve`` (device-dependent defaults), and the checks of
+(``TrainConfig``), the recipes (cpu, parallel, paper) and ``resolve`` (device-dependent defaults), and the checks of
 every value (``__post_init__`` of each class; ``from_dict`` for JSON input: types and ranges).
 
 All configs are frozen, hashable ``dataclasses.dataclass`` objects: pass them as
@@ -154,7 +154,10 @@ class NewSkillConfig:
 class TrainConfig:
     """Run-level settings. ``None`` fields take device-dependent defaults (``resolve``)."""
 
-    num_envs: Optional[int] = None  # CPU: 32, accelerator: 4096
+    # The learners' recipe (``recipe_values``): "cpu", "parallel" or "paper"; None: "cpu" on a CPU
+    # backend, "parallel" on an accelerator (``resolve`` names it).
+    recipe: Optional[str] = None
+    num_envs: Optional[int] = None  # None: the recipe's (CPU: 32, or 1,024 for "parallel"; accelerator: 4096)
     unroll_length: int = 25  # env steps per env per iteration
     replay_size: Optional[int] = None  # CPU: 300k, accelerator: 1M (paper)
     method: str = "skills"  # "skills" (SkillS) or "scratch" (the new skill acting alone)
@@ -173,6 +176,8 @@ class TrainConfig:
     def __post_init__(self):
         if self.method not in self.METHODS:
             raise ValueError(f"method must be 'skills' or 'scratch', got {self.method!r}")
+        if self.recipe is not None and self.recipe not in RECIPES:
+            raise ValueError(f"recipe must be one of {', '.join(RECIPES)} (or null: the device's), got {self.recipe!r}")
         check_ranges(self)
 
     @property
@@ -212,26 +217,51 @@ def describe_schedule(schedule: dict) -> str:
     return (f"learners per iteration of {schedule['env_steps_per_iteration']:,} env steps: " + "; ".join(parts))
 
 
-# ----------------------------------------------------------------------------- device defaults
+# ----------------------------------------------------------------------------- recipes
 
-# The CPU recipe (docs/learning.md: with it, kinematic lift from the useful skills reaches 0.91 at
-# 240k env steps and 0.99 at 400k for seed 0; seeds 1, 2 are at 0.13 / 0.41 after 200k). Learners
-# dominate on a CPU (≈1 update per env step at the paper's ratios), so the scheduler takes fewer
-# samples per insert and learns its critic alone for its first updates (Eq. 3's long-horizon values
-# first); the new skill keeps a high replay ratio (at 16 it did not learn lift in 300k steps) with
-# CRR's indicator weights.
-CPU_DEFAULTS = dict(num_envs=32, replay_size=300_000, scheduler_spi=8.0, scheduler_policy_warmup_updates=1500,
-                    new_skill_spi=64.0, new_skill_crr_mode="indicator")
+RECIPES = ("cpu", "parallel", "paper")
+
+# Run sizes left None: (recipe, on a CPU backend?) -> (num_envs, replay_size).
+RECIPE_SIZES = {("cpu", True): (32, 300_000), ("parallel", True): (1024, 300_000), ("paper", True): (32, 300_000),
+                ("cpu", False): (4096, 1_000_000), ("parallel", False): (4096, 1_000_000),
+                ("paper", False): (4096, 1_000_000)}
 
 
-# The CPU recipe's learner fields: (learner, field) -> (CPU value, the paper's value).
-CPU_RECIPE = {
-    ("scheduler", "samples_per_insert"): (CPU_DEFAULTS["scheduler_spi"], SchedulerConfig.samples_per_insert),
-    ("scheduler", "policy_warmup_updates"): (CPU_DEFAULTS["scheduler_policy_warmup_updates"],
-                                             SchedulerConfig.policy_warmup_updates),
-    ("new_skill", "samples_per_insert"): (CPU_DEFAULTS["new_skill_spi"], NewSkillConfig.samples_per_insert),
-    ("new_skill", "crr_mode"): (CPU_DEFAULTS["new_skill_crr_mode"], NewSkillConfig.crr_mode),
-}
+def recipe_values(recipe: str, num_envs: int, unroll_length: int) -> dict:
+    """The learner fields a recipe sets: ``{(learner, field): value}``, learner "scheduler" or
+    "new_skill" (and ``RECIPE_UNROLL``: its unroll length). Measured in docs/scaling.md.
+
+    * ``paper``: nothing (App. B.3: batches 128 / 256, samples per insert 100 / 50, one-step CRR
+      with exp weights). At 4,096 envs × 25 steps that is 80,000 + 20,000 updates per iteration.
+    * ``cpu`` (the default on a CPU backend; 32 envs): the learners are FLOP-bound there, so
+      fewer samples per env step than the paper (scheduler 8, new skill 16), a critic-only
+      warm-up for the scheduler (Eq. 3's long-horizon values first), and for the new skill CRR's
+      indicator weights with 10-step TD targets, which carry the sparse reward back with 4× fewer
+      samples than the one-step recipe needed (64).
+    * ``parallel`` (the default on an accelerator): one env step per env per iteration and a fixed
+      32 updates of batches that grow with the envs: scheduler batch steps/2 × 8 updates
+      (4 samples per env step), new skill batch = steps × 24 updates (24 per env step), 10-step
+      TD targets; the update-counted schedules (warm-up, target periods) are shortened to keep
+      their env-step meaning at 1,024 envs.
+    """
+    if recipe not in RECIPES:
+        raise ValueError(f"unknown recipe {recipe!r}; valid: {', '.join(RECIPES)}")
+    if recipe == "paper":
+        return {}
+    if recipe == "cpu":
+        return {("scheduler", "samples_per_insert"): 8.0, ("scheduler", "policy_warmup_updates"): 1500,
+                ("new_skill", "samples_per_insert"): 16.0, ("new_skill", "crr_mode"): "indicator",
+                ("new_skill", "n_step"): 10}
+    steps = int(num_envs) * int(unroll_length)
+    return {("scheduler", "batch_size"): max(1, steps // 2), ("scheduler", "samples_per_insert"): 4.0,
+            ("scheduler", "policy_warmup_updates"): 190, ("scheduler", "target_actor_period"): 12,
+            ("scheduler", "target_critic_period"): 3,
+            ("new_skill", "batch_size"): steps, ("new_skill", "samples_per_insert"): 24.0,
+            ("new_skill", "crr_mode"): "indicator", ("new_skill", "n_step"): 10,
+            ("new_skill", "target_actor_period"): 2, ("new_skill", "target_critic_period"): 10}
+
+
+RECIPE_UNROLL = {"parallel": 1}  # unroll_length a recipe sets (when left at the default)
 
 
 def _show(value) -> str:
@@ -240,41 +270,48 @@ def _show(value) -> str:
 
 def resolve(config: TrainConfig, backend: Optional[str] = None,
             given: Optional[Sequence[str]] = None) -> tuple[TrainConfig, list[str]]:
-    """Fill device-dependent defaults. Returns the config and human-readable notes of what was
-    chosen automatically (to log).
+    """Fill the defaults of the config's recipe (``recipe_values``). Returns the config, with its
+    ``recipe`` named, and human-readable notes of what was chosen automatically (to log).
 
-    On a CPU, ``num_envs`` / ``replay_size`` left None get the CPU sizes, and the learners the CPU
-    recipe (``CPU_RECIPE``). ``given``: the dotted names of the fields the user set (``training.run``:
-    those of its config file, e.g. ``"new_skill.n_step"``): every recipe field not among them takes
-    the recipe. ``None`` (callers that build a config in code, and configs resolved already): a
-    learner config takes the recipe only when all its fields are the paper's, so a resolved config
-    is never changed."""
+    ``recipe`` None: "cpu" on a CPU backend, "parallel" on an accelerator. ``num_envs`` /
+    ``replay_size`` left None take the recipe's sizes (``RECIPE_SIZES``). ``given``: the dotted
+    names of the fields the user set (``training.run``: those of its config file and flags, e.g.
+    ``"new_skill.n_step"``): every recipe field not among them takes the recipe. ``None``
+    (callers that build a config in code, and configs resolved already): a learner config takes
+    the recipe only when all its fields are the paper's, ``unroll_length`` only at its default,
+    so a resolved config is never changed."""
     if backend is None:
         import jax
 
         backend = jax.default_backend()
-    if backend != "cpu":
-        return dataclasses.replace(config, num_envs=4096 if config.num_envs is None else config.num_envs,
-                                   replay_size=1_000_000 if config.replay_size is None else config.replay_size), []
-    notes: list[str] = []
-    cfg = config
+    on_cpu = backend == "cpu"
+    recipe = config.recipe or ("cpu" if on_cpu else "parallel")
+    notes: list[str] = [] if config.recipe else [f"recipe={recipe}"]
+    envs, replay = RECIPE_SIZES[(recipe, on_cpu)]
+    cfg = dataclasses.replace(config, recipe=recipe)
     if cfg.num_envs is None:
-        cfg = dataclasses.replace(cfg, num_envs=CPU_DEFAULTS["num_envs"])
-        notes.append(f"num_envs={cfg.num_envs}")
+        cfg = dataclasses.replace(cfg, num_envs=envs)
+        notes.append(f"num_envs={envs}")
     if cfg.replay_size is None:
-        cfg = dataclasses.replace(cfg, replay_size=CPU_DEFAULTS["replay_size"])
-        notes.append(f"replay_size={cfg.replay_size}")
+        cfg = dataclasses.replace(cfg, replay_size=replay)
+        notes.append(f"replay_size={replay}")
     given = None if given is None else set(given)
+    unroll = RECIPE_UNROLL.get(recipe)
+    if unroll is not None and (cfg.unroll_length != unroll) and (
+            "unroll_length" not in given if given is not None else cfg.unroll_length == TrainConfig.unroll_length):
+        cfg = dataclasses.replace(cfg, unroll_length=unroll)
+        notes.append(f"unroll_length={unroll} (paper {TrainConfig.unroll_length})")
+    values = recipe_values(recipe, cfg.num_envs, cfg.unroll_length)
     for learner, default in (("scheduler", SchedulerConfig()), ("new_skill", NewSkillConfig())):
         sub = getattr(cfg, learner)
         if given is None and sub != default:
             continue
-        changes = {f: cpu for (name, f), (cpu, _) in CPU_RECIPE.items()
-                   if name == learner and (given is None or f"{learner}.{f}" not in given)}
+        changes = {f: v for (name, f), v in values.items()
+                   if name == learner and (given is None or f"{learner}.{f}" not in given) and getattr(sub, f) != v}
         if changes:
             cfg = dataclasses.replace(cfg, **{learner: dataclasses.replace(sub, **changes)})
             notes.append(f"{learner.replace('_', '-')} " + ", ".join(
-                f"{f}={_show(v)} (paper {_show(CPU_RECIPE[(learner, f)][1])})" for f, v in changes.items()))
+                f"{f}={_show(v)} (paper {_show(getattr(default, f))})" for f, v in changes.items()))
     return cfg, notes
 
 
@@ -290,6 +327,10 @@ def _check_value(where: str, name: str, default, value):
 
     is_int = isinstance(value, int) and not isinstance(value, bool)
     lo = 1 if name.rsplit(".", 1)[-1] in POSITIVE_FIELDS else 0
+    if name == "recipe":
+        if value is not None and value not in RECIPES:
+            raise bad(f"one of {', '.join(RECIPES)} or null")
+        return value
     if default is None:  # device-dependent size (num_envs, replay_size)
         if value is None:
             return None

@@ -46,7 +46,7 @@ from parallel_skills.hcmpo import (critic_target, e_step_weights, m_step_loss, m
                                    temperature_dual_loss)
 from parallel_skills.mpo import gaussian_mpo_loss
 from parallel_skills.networks import (GaussianPolicy, QCritic, QEnsemble, SchedulerCritic, SchedulerPolicy,
-                                      all_pairs, categorical_entropy, gaussian_log_prob,
+                                      all_pairs, categorical_entropy, pair_values, gaussian_log_prob,
                                       joint_log_probs, sample_action)
 
 from parallel_skills.replay import Transition
@@ -177,8 +177,16 @@ class SchedulerAux(NamedTuple):
 
 
 def _scheduler_pairs(num_skills: int, config: SchedulerConfig):
-    """(pair_i, pair_k, pair_kv) [P]: every (skill, length index, length value) pair."""
-    return tuple(jnp.asarray(a) for a in all_pairs(num_skills, config.skill_lengths))
+    """(pair_i, pair_k, pair_kv) [P]: every (skill, length index, length value) pair; then the
+    skill lengths K [M] (the counter values a fresh decision sets)."""
+    return tuple(jnp.asarray(a) for a in all_pairs(num_skills, config.skill_lengths)) + (
+        jnp.asarray(config.skill_lengths, jnp.int32),)
+
+
+def _read_pair(table_row, skill, k_idx, num_lengths: int):
+    """Q of each row's own pair from one table row per state: [B, P], [B], [B] -> [B]."""
+    pair = jnp.asarray(skill, jnp.int32) * num_lengths + jnp.asarray(k_idx, jnp.int32)
+    return jnp.take_along_axis(table_row, pair[:, None], axis=1)[:, 0]
 
 
 def _tile(x, b: int):
@@ -190,18 +198,17 @@ def scheduler_targets(state: LearnerState, batch: Transition, networks, pairs,
     """Eq. 3's target with the target policy and critic at s' (the expectation over (i', k')
     exact), and π_old = the target policy at s."""
     policy, critic = networks
-    pair_i, pair_k, pair_kv = pairs
-    num_pairs, b = pair_i.shape[0], batch.obs.shape[0]
+    lengths = pairs[3]
+    b = batch.obs.shape[0]
     c = batch.c
     t_li_next, t_lk_next = policy.apply(state.target_policy_params, batch.next_obs)
     probs_next = jnp.exp(joint_log_probs(t_li_next, t_lk_next))  # [B, P]
-    q_next = critic.apply(
-        state.target_critic_params, batch.next_obs,
-        jnp.concatenate([_tile(pair_kv, b), jnp.maximum(c - 1, 1)[:, None]], axis=1),
-        jnp.concatenate([_tile(pair_i, b), batch.skill[:, None]], axis=1),
-        jnp.concatenate([_tile(pair_k, b), batch.k_idx[:, None]], axis=1))  # [B, P + 1]
-    y = critic_target(batch.reward, batch.discount, c, q_next[:, num_pairs], q_next[:, :num_pairs], probs_next,
-                      config.discount)
+    # One head row per distinct counter value: c' = each K (fresh decisions) and c − 1 (continuing).
+    table = critic.apply(state.target_critic_params, batch.next_obs,
+                         jnp.concatenate([_tile(lengths, b), jnp.maximum(c - 1, 1)[:, None]], axis=1))
+    q_fresh_next = pair_values(table[:, :-1], lengths.shape[0])  # [B, P]: Q'(s', K, i, k)
+    q_cont_next = _read_pair(table[:, -1], batch.skill, batch.k_idx, lengths.shape[0])  # [B]
+    y = critic_target(batch.reward, batch.discount, c, q_cont_next, q_fresh_next, probs_next, config.discount)
     t_li, t_lk = policy.apply(state.target_policy_params, batch.obs)
     log_prior = jax.lax.stop_gradient(joint_log_probs(t_li, t_lk))  # [B, P]
     return SchedulerTargets(y=y, log_prior=log_prior)
@@ -215,17 +222,14 @@ def scheduler_loss(params, steps, batch: Transition, targets: SchedulerTargets, 
     ``params`` = (policy, critic, dual)."""
     policy_params, critic_params, dual_params = params
     policy, critic = networks
-    pair_i, pair_k, pair_kv = pairs
+    lengths = pairs[3]
     b = batch.obs.shape[0]
     dmask = batch.weight * batch.is_decision.astype(jnp.float32)
-    q_all = critic.apply(
-        critic_params, batch.obs,
-        jnp.concatenate([batch.c[:, None], _tile(pair_kv, b)], axis=1),
-        jnp.concatenate([batch.skill[:, None], _tile(pair_i, b)], axis=1),
-        jnp.concatenate([batch.k_idx[:, None], _tile(pair_k, b)], axis=1))  # [B, 1 + P]
-    q = q_all[:, 0]
+    table = critic.apply(critic_params, batch.obs,
+                         jnp.concatenate([batch.c[:, None], _tile(lengths, b)], axis=1))  # [B, 1 + M, P]
+    q = _read_pair(table[:, 0], batch.skill, batch.k_idx, lengths.shape[0])  # [B]: Q(s, c, i, k)
     critic_loss = masked_mean(0.5 * jnp.square(q - targets.y), batch.weight)
-    q_fresh = jax.lax.stop_gradient(q_all[:, 1:])  # Q(s, c=k, i, k), all pairs
+    q_fresh = jax.lax.stop_gradient(pair_values(table[:, 1:], lengths.shape[0]))  # Q(s, c=k, i, k), all pairs
     temperature = positive(dual_params["log_temperature"])
     alpha = positive(dual_params["log_alpha"])
     weights = e_step_weights(q_fresh, targets.log_prior, temperature)

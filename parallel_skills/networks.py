@@ -190,11 +190,14 @@ class SchedulerCritic(nn.Module):
     """Scheduler critic Q(s, c, i, k) (paper Eq. 3; docs/design.md "Scheduler and counters").
 
     __call__(obs [B, O], c [B, P] int, i [B, P] int, k_idx [B, P] int) -> q [B, P].
+    __call__(obs [B, O], c [B, U] int) -> table [B, U, (N+1)·M]: Q(s, c_u, i, k) of every pair
+    for each queried counter value (``i`` and ``k_idx`` omitted).
 
     The torso runs once per state. A head on [features, c / max_length] (run once per queried
     counter value) outputs one value per (i, k) pair, DQN style, and each query reads its own
     pair: every skill and length has its own output unit, so values of different skills are not
-    forced to share a state dependence.
+    forced to share a state dependence. The head's cost grows with the number of counter values
+    queried, not of pairs: the learner queries each distinct c once (``pair_values``).
     """
 
     num_skills: int
@@ -204,16 +207,29 @@ class SchedulerCritic(nn.Module):
     head_hidden: Tuple[int, ...] = (128,)
 
     @nn.compact
-    def __call__(self, obs, c, i, k_idx):
+    def __call__(self, obs, c, i=None, k_idx=None):
         feat = LayerNormMLP(tuple(self.hidden), name="torso")(obs)  # [B, H]
         head = tuple(self.head_hidden)
         if not head:
             raise ValueError("SchedulerCritic needs at least one head layer")
         x = nn.Dense(head[0], name="head_feat")(feat)[..., None, :]  # [B, 1, w0] (carries the bias)
-        c_scaled = (jnp.asarray(c, feat.dtype) / float(self.max_length))[..., None]  # [B, P, 1]
-        x = nn.elu(x + nn.Dense(head[0], use_bias=False, name="head_c")(c_scaled))  # [B, P, w0]
+        c_scaled = (jnp.asarray(c, feat.dtype) / float(self.max_length))[..., None]  # [B, U, 1]
+        x = nn.elu(x + nn.Dense(head[0], use_bias=False, name="head_c")(c_scaled))  # [B, U, w0]
         for n, width in enumerate(head[1:]):
             x = nn.elu(nn.Dense(width, name=f"head_{n + 1}")(x))
-        table = nn.Dense(self.num_skills * self.num_lengths, name="head_out")(x)  # [B, P, (N+1)·M]
+        table = nn.Dense(self.num_skills * self.num_lengths, name="head_out")(x)  # [B, U, (N+1)·M]
+        if i is None:
+            return table
         pair = jnp.asarray(i, jnp.int32) * self.num_lengths + jnp.asarray(k_idx, jnp.int32)  # [B, P]
         return jnp.take_along_axis(table, pair[..., None], axis=-1)[..., 0]
+
+
+def pair_values(table: jnp.ndarray, num_lengths: int) -> jnp.ndarray:
+    """Q(s, c = k, i, k) of every pair (i-major, ``all_pairs`` order) from a critic table queried
+    at c = each skill length in order: table [B, M, (N+1)·M] -> [B, (N+1)·M]. Row u of the
+    table holds c = K[u]; pair p = i·M + k_idx is read from row k_idx."""
+    b, m, width = table.shape
+    if m != num_lengths or width % num_lengths:
+        raise ValueError(f"table of shape {table.shape} is not one row per skill length ({num_lengths})")
+    k_idx = jnp.arange(width) % num_lengths  # [P]
+    return jnp.take_along_axis(table, k_idx[None, None, :], axis=1)[:, 0, :]

@@ -271,7 +271,7 @@ def _checked_config(environment, skills, config: TrainConfig, num_timesteps, num
     if auto_config:
         config, notes = resolve(config)
         if notes:
-            log.warning("CPU backend: smaller defaults chosen automatically: %s", ", ".join(notes))
+            log.warning("defaults chosen automatically: %s", ", ".join(notes))
     elif config.num_envs is None or config.replay_size is None:
         raise ValueError("auto_config=False needs a resolved config (num_envs and replay_size set): see resolve()")
     for s in skills:
@@ -306,6 +306,7 @@ def train(
     host_state: Optional[dict] = None,
     checkpoint_fn: Optional[Callable[[TrainingState, dict], None]] = None,
     checkpoint_every: Optional[int] = None,
+    checkpoint_min_seconds: float = 0.0,
     step_fn: Optional[Callable[[int], None]] = None,
     auto_config: bool = True,
 ):
@@ -320,7 +321,8 @@ def train(
 
     Checkpoints and exact resumption (``training.checkpointing``): ``checkpoint_fn(state,
     host_state)`` is called after the iteration in which ``env_steps`` crosses a multiple of
-    ``checkpoint_every`` (``None``: after every evaluation) and after the last iteration, with the
+    ``checkpoint_every`` (``None``: after every evaluation at least ``checkpoint_min_seconds`` of
+    wall time after the previous checkpoint or the start) and after the last iteration, with the
     whole ``TrainingState`` and the host-side loop state (a JSON-able dict: iteration, env_steps,
     the last evaluation's metrics, the training statistics accumulated since it, elapsed wall
     time). It must finish with ``state`` before returning (the next iteration donates its
@@ -342,6 +344,7 @@ def train(
     metrics: dict = dict(host_state.get("metrics") or {})
     t0 = time.perf_counter() - float(host_state.get("wall_time", 0.0))
     acc = _Accumulator.from_dict(host_state.get("accumulator"))
+    last_checkpoint = time.perf_counter()
     for it in range(start, num_iterations):
         state, train_m = iteration(state)
         acc.add(train_m)
@@ -355,7 +358,9 @@ def train(
             metrics.update(env_steps=int(state.env_steps), wall_time=time.perf_counter() - t0, iteration=it + 1)
             if progress_fn is not None:
                 progress_fn(int(state.env_steps), metrics)
-        if checkpoint_fn is not None and _checkpoint_due(it, spi, checkpoint_every, evaluated, last):
+        spaced = time.perf_counter() - last_checkpoint >= checkpoint_min_seconds
+        if checkpoint_fn is not None and _checkpoint_due(it, spi, checkpoint_every, evaluated and spaced, last):
+            last_checkpoint = time.perf_counter()
             checkpoint_fn(state, {"iteration": it + 1, "env_steps": (it + 1) * spi, "metrics": metrics,
                                   "accumulator": acc.to_dict(), "wall_time": time.perf_counter() - t0})
     params = {"new_skill": state.new_skill.policy_params, "scheduler": state.scheduler.policy_params,

@@ -86,6 +86,7 @@ UNKNOWN_NAMES = [
     (["--physics", "bullet"], "unknown physics 'bullet'", "kinematic"),
     (["--skills", "everything"], "unknown skill set 'everything'", "useful+distractors"),
     (["--method", "magic"], "--method", "scratch"),
+    (["--recipe", "fast"], "--recipe", "parallel"),
     (["--task", "reach_green"], "no skill table for task 'reach_green'", "lift"),  # a dense task has no skill set
 ]
 
@@ -114,6 +115,7 @@ BAD_CONFIGS = [
     ("lengths_type", {"scheduler": {"skill_lengths": 3}}, "skill_lengths must be a non-empty list"),
     ("crr_mode", {"new_skill": {"crr_mode": "bogus"}}, "crr_mode must be 'exp' or 'indicator'"),
     ("method", {"method": "magic"}, "method must be 'skills' or 'scratch'"),
+    ("recipe", {"recipe": "fast"}, "recipe must be one of cpu, parallel, paper or null"),
 ]
 
 
@@ -194,11 +196,12 @@ def test_config_file_fields_and_the_cpu_recipe(ws):
     with open(out / "config.json") as f:
         record = json.load(f)
     new_skill = record["train_config"]["new_skill"]
-    assert new_skill["n_step"] == 2 and new_skill["samples_per_insert"] == 64.0 and new_skill["crr_mode"] == "indicator"
+    assert new_skill["n_step"] == 2 and new_skill["samples_per_insert"] == 16.0 and new_skill["crr_mode"] == "indicator"
+    assert record["train_config"]["recipe"] == "cpu"
     # The learners' batches and updates per iteration are recorded: 32 envs x 5 steps = 160 per iteration.
     assert record["learners"]["env_steps_per_iteration"] == 160
-    assert record["learners"]["new_skill"] == {"batch_size": 256, "updates_per_iteration": 40,
-                                               "samples_per_env_step": 64.0}
+    assert record["learners"]["new_skill"] == {"batch_size": 256, "updates_per_iteration": 10,
+                                               "samples_per_env_step": 16.0}
 
 
 def test_resume_without_checkpoint_and_conflicting_flags(ws, fresh_run, capsys):
@@ -213,6 +216,7 @@ def test_resume_without_checkpoint_and_conflicting_flags(ws, fresh_run, capsys):
     _fails(out + ["--num_timesteps", "200"], capsys, "holds no checkpoint")  # (a larger budget extends)
     _fails(out + ["--task", "stack"], capsys, "--task stack conflicts", '"lift"')
     _fails(out + ["--method", "scratch"], capsys, "--method scratch conflicts")
+    _fails(out + ["--recipe", "paper"], capsys, "--recipe paper conflicts", '"cpu"')
     _fails(out + ["--no-replay-checkpoint"], capsys, "--no-replay-checkpoint conflicts")
     _fails(out + ["--config", str(changed)], capsys, "sets unroll_length=7", "has 5")
     _fails(out + ["--config", str(ws / "missing.json")], capsys, "does not exist")

@@ -1,5 +1,6 @@
 import math
 
+import pytest
 import numpy as np
 import jax
 import jax.numpy as jnp
@@ -101,3 +102,22 @@ def test_scheduler_critic_matches_numpy_head():
     table = h @ p["head_out"]["kernel"] + p["head_out"]["bias"]  # [B, P, N1*M]
     expected = np.take_along_axis(table, (np.asarray(i) * M + np.asarray(k))[..., None], -1)[..., 0]
     np.testing.assert_allclose(q, expected, rtol=1e-4, atol=1e-5)
+
+
+def test_scheduler_critic_table_gives_every_pair_once_per_counter_value():
+    """The learner's query (one head row per distinct c, ``pair_values``) equals querying every
+    pair (i, k) at c = K[k] one by one, as Eq. 3's expectation and the E-step need."""
+    from parallel_skills.networks import all_pairs, pair_values
+    N1, lengths = 3, (2, 3, 5)
+    M = len(lengths)
+    net = SchedulerCritic(N1, M, max(lengths), hidden=(16, 8), head_hidden=(12, 6))
+    B = 4
+    obs = jax.random.normal(jax.random.PRNGKey(0), (B, O))
+    pi, pk, pkv = (np.broadcast_to(a, (B, a.shape[0])) for a in all_pairs(N1, lengths))
+    params = net.init(jax.random.PRNGKey(1), obs, pkv, pi, pk)
+    per_pair = np.asarray(net.apply(params, obs, pkv, pi, pk))  # [B, P]
+    table = net.apply(params, obs, np.broadcast_to(np.asarray(lengths), (B, M)))  # [B, M, P]
+    assert table.shape == (B, M, N1 * M)
+    np.testing.assert_allclose(np.asarray(pair_values(table, M)), per_pair, rtol=1e-6, atol=1e-6)
+    with pytest.raises(ValueError, match="one row per skill length"):
+        pair_values(table[:, :2], M)

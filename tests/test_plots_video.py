@@ -362,6 +362,7 @@ def test_run_writes_logs_plots_and_video(tmp_path, capsys):
         steps, runs = json.loads(r["skill_steps"]), json.loads(r["skill_runs"])
         assert len(steps) == len(runs) == 3 and sum(steps) == 60  # every env step of the interval
         assert 0 < sum(runs) <= sum(steps)
+        assert 100 < float(r["rss_mb"]) < 100_000  # the process's resident memory (a JAX process: > 100 MiB)
 
     scalars = read_scalars(out)
     assert [s for s, _ in scalars["eval/new_skill_success"]] == [60, 120, 180, 240]

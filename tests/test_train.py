@@ -108,11 +108,14 @@ def test_train_entry_point_returns_policies():
     from parallel_skills import train
 
     env = tasks.make("lift", episode_length=10)
-    seen, steps = [], []
+    seen, steps, saved = [], [], []
     cfg = dataclasses.replace(SMALL, eval_every=2)
     make_policy, params, metrics = train(env, _skills(), num_timesteps=60, seed=0, config=cfg,
-                                         progress_fn=lambda n, m: seen.append(n), step_fn=steps.append)
+                                         progress_fn=lambda n, m: seen.append(n), step_fn=steps.append,
+                                         checkpoint_fn=lambda s, h: saved.append(h["env_steps"]),
+                                         checkpoint_min_seconds=3600.0)
     assert seen and seen[-1] == metrics["env_steps"] >= 60
+    assert len(seen) > 1 and saved == [seen[-1]]  # evaluations within the hour: only the final checkpoint
     spi = SMALL.num_envs * SMALL.unroll_length  # step_fn: after every iteration
     assert steps == [spi * (i + 1) for i in range(len(steps))] and steps[-1] == metrics["env_steps"]
     assert set(seen) <= set(steps)
@@ -188,37 +191,61 @@ def test_nan_reset_steps_are_dropped_and_force_a_decision(small_trainer):
 
 
 def test_cpu_recipe_applies_only_to_learner_configs_left_at_paper_defaults():
-    from parallel_skills.config import CPU_DEFAULTS, resolve
+    from parallel_skills.config import RECIPE_SIZES, recipe_values, resolve
 
+    cpu = recipe_values("cpu", 32, 25)
     cfg, notes = resolve(TrainConfig(), backend="cpu")
-    assert cfg.num_envs == CPU_DEFAULTS["num_envs"] and cfg.replay_size == CPU_DEFAULTS["replay_size"]
-    assert cfg.scheduler.samples_per_insert == CPU_DEFAULTS["scheduler_spi"]
-    assert cfg.scheduler.policy_warmup_updates == CPU_DEFAULTS["scheduler_policy_warmup_updates"]
-    assert cfg.new_skill.samples_per_insert == CPU_DEFAULTS["new_skill_spi"]
-    assert cfg.new_skill.crr_mode == CPU_DEFAULTS["new_skill_crr_mode"]
-    assert len(notes) == 4  # every automatic choice is logged
+    assert cfg.recipe == "cpu" and (cfg.num_envs, cfg.replay_size) == RECIPE_SIZES[("cpu", True)]
+    for (learner, field), value in cpu.items():
+        assert getattr(getattr(cfg, learner), field) == value, (learner, field)
+    assert cfg.new_skill.n_step == 10 and cfg.new_skill.samples_per_insert == 16.0
+    assert len(notes) == 5  # every automatic choice is logged: recipe, 2 sizes, 2 learners
     mine = TrainConfig(num_envs=8, new_skill=NewSkillConfig(samples_per_insert=16.0))
     cfg, notes = resolve(mine, backend="cpu")
     assert cfg.num_envs == 8 and cfg.new_skill == mine.new_skill  # the user's choices stand
-    assert cfg.scheduler.samples_per_insert == CPU_DEFAULTS["scheduler_spi"]
-    gpu, notes = resolve(TrainConfig(), backend="gpu")
-    assert gpu.num_envs == 4096 and gpu.scheduler == SchedulerConfig() and gpu.new_skill == NewSkillConfig()
+    assert cfg.scheduler.samples_per_insert == cpu[("scheduler", "samples_per_insert")]
     assert resolve(cfg, backend="cpu")[0] == cfg  # a resolved config is left as it is
+    paper, _ = resolve(TrainConfig(recipe="paper"), backend="cpu")
+    assert paper.scheduler == SchedulerConfig() and paper.new_skill == NewSkillConfig() and paper.num_envs == 32
+
+
+def test_accelerator_default_is_the_parallel_recipe_with_at_most_32_updates_per_iteration():
+    """The issue's bound: resolved for an accelerator, the defaults run ≤ 32 learner updates per
+    iteration whatever the number of envs, with batches that grow with the envs."""
+    from parallel_skills.config import learner_schedule, resolve
+
+    gpu, notes = resolve(TrainConfig(), backend="gpu")
+    assert gpu.recipe == "parallel" and gpu.num_envs == 4096 and gpu.unroll_length == 1
+    assert "recipe=parallel" in notes
+    for envs in (None, 1024, 4096, 16384, 65536):
+        cfg, _ = resolve(TrainConfig(num_envs=envs), backend="gpu")
+        s = learner_schedule(cfg)
+        assert s["scheduler"]["updates_per_iteration"] + s["new_skill"]["updates_per_iteration"] <= 32
+        assert s["scheduler"]["batch_size"] == cfg.num_envs // 2 and s["new_skill"]["batch_size"] == cfg.num_envs
+        assert s["scheduler"]["samples_per_env_step"] == 4.0 and s["new_skill"]["samples_per_env_step"] == 24.0
+        assert resolve(cfg, backend="gpu")[0] == cfg
+    # Selectable on a CPU (1,024 envs by default there); the paper's settings stay reachable.
+    par, _ = resolve(TrainConfig(recipe="parallel"), backend="cpu")
+    assert par.num_envs == 1024 and learner_schedule(par)["new_skill"]["updates_per_iteration"] == 24
+    paper, _ = resolve(TrainConfig(recipe="paper"), backend="gpu")
+    assert learner_schedule(paper)["scheduler"]["updates_per_iteration"] == 80_000
+    with pytest.raises(ValueError, match="recipe must be one of cpu, parallel, paper"):
+        TrainConfig(recipe="fast")
 
 
 def test_cpu_recipe_fills_the_fields_a_config_file_leaves():
     """training.run knows which fields its config file set (``given``): each recipe field it left
     takes the CPU recipe, whatever else the file set; what it set stands, paper values included."""
-    from parallel_skills.config import CPU_DEFAULTS, resolve
+    from parallel_skills.config import resolve
 
     mine = TrainConfig(scheduler=SchedulerConfig(samples_per_insert=100.0), new_skill=NewSkillConfig(n_step=3))
     cfg, notes = resolve(mine, backend="cpu", given=["new_skill.n_step", "scheduler.samples_per_insert"])
-    assert cfg.new_skill.n_step == 3 and cfg.new_skill.samples_per_insert == CPU_DEFAULTS["new_skill_spi"]
-    assert cfg.new_skill.crr_mode == CPU_DEFAULTS["new_skill_crr_mode"]
+    assert cfg.new_skill.n_step == 3 and cfg.new_skill.samples_per_insert == 16.0
+    assert cfg.new_skill.crr_mode == "indicator"
     assert cfg.scheduler.samples_per_insert == 100.0  # set (to the paper's value) in the file: kept
-    assert cfg.scheduler.policy_warmup_updates == CPU_DEFAULTS["scheduler_policy_warmup_updates"]
+    assert cfg.scheduler.policy_warmup_updates == 1500
     assert "scheduler policy_warmup_updates=1500 (paper 0)" in notes
-    assert "new-skill samples_per_insert=64 (paper 50), crr_mode=indicator (paper exp)" in notes
+    assert "new-skill samples_per_insert=16 (paper 50), crr_mode=indicator (paper exp)" in notes
     # Without ``given`` (a config built in code) a changed learner config is the user's: no recipe.
     assert resolve(mine, backend="cpu")[0].new_skill == mine.new_skill
 
@@ -248,6 +275,6 @@ def test_learner_schedule_of_the_cpu_recipe():
     s = learner_schedule(cfg)
     assert s["env_steps_per_iteration"] == 32 * 25
     assert s["scheduler"] == {"batch_size": 128, "updates_per_iteration": 50, "samples_per_env_step": 8.0}
-    assert s["new_skill"] == {"batch_size": 256, "updates_per_iteration": 200, "samples_per_env_step": 64.0}
+    assert s["new_skill"] == {"batch_size": 256, "updates_per_iteration": 50, "samples_per_env_step": 16.0}
     assert learner_schedule(dataclasses.replace(cfg, method="scratch"))["scheduler"]["updates_per_iteration"] == 0
     assert "scheduler batch 128 x 50 updates" in describe_schedule(s)

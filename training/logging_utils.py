@@ -30,6 +30,20 @@ from typing import Optional, Sequence
 # ----------------------------------------------------------------------------- metrics.csv
 
 
+def resident_mb() -> float:
+    """This process's resident set size now, in MiB (metrics.csv ``rss_mb``, written at each
+    evaluation): /proc/self/statm on Linux; elsewhere the peak RSS (``ru_maxrss``)."""
+    try:
+        with open("/proc/self/statm") as f:
+            pages = int(f.read().split()[1])
+        return round(pages * os.sysconf("SC_PAGE_SIZE") / 2**20, 1)
+    except (OSError, ValueError, IndexError):
+        import resource
+
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux, bytes on macOS
+        return round(peak / (2**20 if sys.platform == "darwin" else 2**10), 1)
+
+
 def format_row(metrics: dict, fields: Sequence[str]) -> list:
     """A metrics.csv row: lists as JSON, missing values as empty strings."""
     return [json.dumps(metrics[k]) if isinstance(metrics.get(k), list) else metrics.get(k, "") for k in fields]

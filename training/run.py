@@ -33,9 +33,9 @@ import time
 
 from training import rundir
 from training.cli import Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int
-from training.logging_utils import Progress, TensorBoardLogger, format_row
+from training.logging_utils import Progress, TensorBoardLogger, format_row, resident_mb
 from training.rundir import RunRecord
-from parallel_skills.config import TrainConfig
+from parallel_skills.config import RECIPES, TrainConfig
 
 # CPU: the README quickstart must end within 15 minutes on 2 cores (kinematic lift, seed 0: ≈ 0.4
 # success after 160k steps, 0.8-0.97 from 260k; other seeds are slower; docs/learning.md, README).
@@ -49,7 +49,10 @@ CSV_FIELDS = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skil
               "eval/scheduler_return", "episode_success", "episode_return", "new_skill_selection_rate",
               "scheduler/critic_loss", "new_skill/critic_loss", "scheduler/policy_entropy_i", "skill_histogram",
               "length_histogram", "skill_steps", "skill_runs", "scheduler/q_mean", "new_skill/q_mean",
-              "new_skill/crr_weight_mean", "new_skill/policy_log_std_mean"]
+              "new_skill/crr_weight_mean", "new_skill/policy_log_std_mean", "rss_mb"]
+# Without --checkpoint_every: checkpoint at evaluations, but at most once a minute (a lift run on a
+# CPU evaluates every ~10 s; a checkpoint with its replay takes ~1 s there).
+CHECKPOINT_MIN_SECONDS = 60.0
 DEFAULT_CACHE_DIR = os.path.join(os.path.expanduser("~"), ".cache", "parallel_skills_jax")
 
 
@@ -60,7 +63,12 @@ def build_parser():
     p = Parser(prog="python -m training.run", description=__doc__.splitlines()[0])
     p.add_argument("--task", default=None, help="task name (see tasks.names()); default lift")
     p.add_argument("--physics", default=None, help=f"one of {', '.join(tasks.PHYSICS)}; default kinematic")
-    p.add_argument("--num_envs", type=positive_int, default=None, help="default: 32 on CPU, 4096 on GPU")
+    p.add_argument("--recipe", default=None, choices=list(RECIPES),
+                   help="the learners' recipe (docs/scaling.md): cpu (32 envs, few samples per env step), parallel "
+                        "(batches that grow with the envs, 32 updates per iteration), paper (App. B.3); "
+                        "default cpu on a CPU, parallel on an accelerator")
+    p.add_argument("--num_envs", type=positive_int, default=None,
+                   help="default: the recipe's (CPU: 32, 1024 with --recipe parallel; accelerator: 4096)")
     p.add_argument("--num_timesteps", type=positive_int, default=None, help="env steps (default: 160k on CPU, 20M on GPU)")
     p.add_argument("--episode_length", type=positive_int, default=None)
     p.add_argument("--seed", type=nonnegative_int, default=None, help="default 0")
@@ -82,7 +90,8 @@ def build_parser():
     p.add_argument("--resume", action="store_true",
                    help="continue the run in the existing --out from its latest checkpoint, with its config.json")
     p.add_argument("--checkpoint_every", type=positive_int, default=None,
-                   help="env steps between checkpoints (default: at every evaluation); the latest 2 are kept")
+                   help="env steps between checkpoints (default: at evaluations, at most once a minute, and at the "
+                        "end); the latest 2 are kept")
     p.add_argument("--video", action="store_true",
                    help="at the end, write DIR/new_skill.mp4 (or .gif without ffmpeg): one episode of the new skill "
                         "alone, rendered headless (MUJOCO_GL=egl, else osmesa)")
@@ -165,7 +174,8 @@ def prepare_new(args, argv):
     if args.config:
         file_data = load_config_file(args.config)
         cfg = apply_config(cfg, file_data, f"config file {args.config}")
-    flags = {"num_envs": args.num_envs, "method": args.method, "eval_episodes": args.eval_episodes}
+    flags = {"recipe": args.recipe, "num_envs": args.num_envs, "method": args.method,
+             "eval_episodes": args.eval_episodes}
     cfg = dataclasses.replace(cfg, **{k: v for k, v in flags.items() if v is not None})
     method = cfg.method
     if method not in METHODS:  # (TrainConfig validates it too)
@@ -228,7 +238,7 @@ def prepare_resume(args):
              "skills": (args.skills, run.skill_set), "skill_source": (args.skill_source, run.skill_source),
              "skill_dir": (os.path.abspath(args.skill_dir) if args.skill_dir else None, run.skill_dir),
              "seed": (args.seed, run.seed),
-             "method": (args.method, resolved.method),
+             "method": (args.method, resolved.method), "recipe": (args.recipe, resolved.recipe),
              "num_envs": (args.num_envs, resolved.num_envs), "episode_length": (args.episode_length, run.episode_length),
              "eval_every": (args.eval_every, resolved.eval_every),
              "eval_episodes": (args.eval_episodes, resolved.eval_episodes),
@@ -394,7 +404,7 @@ def _train(out, run, resolved, env, resume: bool, video: bool = False):
         print(f"run dir: {out}")
     print(f"task={run.task} physics={run.physics} method={resolved.method} skills={names or '(none)'}")
     if run.auto and not resume:  # (train() gets the resolved config: it has nothing to choose)
-        print("CPU backend: smaller defaults chosen automatically: " + ", ".join(run.auto))
+        print("defaults chosen automatically: " + ", ".join(run.auto))
     print(describe_schedule(learner_schedule(resolved)))
 
     t0 = time.perf_counter()
@@ -420,6 +430,7 @@ def _train(out, run, resolved, env, resume: bool, video: bool = False):
 
         def progress(steps, m):
             nonlocal csv_rows
+            m = dict(m, rss_mb=resident_mb())
             write_row(format_row(m, fields))
             csv_rows += 1
             tb.log(steps, m)
@@ -432,7 +443,8 @@ def _train(out, run, resolved, env, resume: bool, video: bool = False):
         make_policy, params, metrics = train(
             env, skills, num_timesteps=num_timesteps, seed=seed, config=resolved, progress_fn=progress,
             initial_state=initial_state, host_state=host_state, checkpoint_fn=checkpoint,
-            checkpoint_every=run.checkpoint_every, step_fn=bar.advance, auto_config=False)
+            checkpoint_every=run.checkpoint_every, checkpoint_min_seconds=CHECKPOINT_MIN_SECONDS,
+            step_fn=bar.advance, auto_config=False)
     bar.close()
     tb.close()
     ckpt.close()

@@ -1,0 +1,96 @@
+"""Where an iteration's time goes, at a recipe's resolved config: acting (collect + replay insert),
+each learner's updates, and one evaluation (new skill alone + scheduler alone), measured in one run
+on the same state (replay filled by a few iterations first). The CPU goals of docs/scaling.md
+are about this split: on a CPU the learners are FLOP-bound, so their share is what a recipe buys.
+
+    python bench/iteration_breakdown.py                      # the device's default recipe, lift
+    python bench/iteration_breakdown.py --recipe parallel --num_envs 1024
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import jax
+
+import tasks
+from parallel_skills import Skill, TrainConfig, learners
+from parallel_skills.config import describe_schedule, dotted_names, from_dict, learner_schedule, resolve
+from parallel_skills.train import make_evaluation, make_trainer, run_learner
+from tasks.manipulation import scripted
+from training import skill_library
+
+
+def best_of(fn, *args, repeats: int = 5) -> float:
+    """Seconds of the fastest of ``repeats`` calls (after one call that compiles)."""
+    jax.block_until_ready(fn(*args))
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--task", default="lift")
+    p.add_argument("--skills", default="useful")
+    p.add_argument("--recipe", default=None, help="cpu, parallel or paper (default: the device's)")
+    p.add_argument("--num_envs", type=int, default=None)
+    p.add_argument("--config", default=None, help="JSON file of TrainConfig fields (as training.run --config)")
+    p.add_argument("--eval_every", type=int, default=8, help="iterations per evaluation, to share its cost")
+    p.add_argument("--fill", type=int, default=4, help="iterations run first to fill the replay")
+    args = p.parse_args()
+
+    env = tasks.make(args.task)
+    names = skill_library.skill_names(args.task, args.skills)
+    skills = [Skill.from_fn(n, scripted.get(n)) for n in names]
+    cfg, data = TrainConfig(recipe=args.recipe, num_envs=args.num_envs), {}
+    if args.config:
+        with open(args.config) as f:
+            data = json.load(f)
+        cfg = from_dict(cfg, data, args.config)
+    cfg, _ = resolve(cfg, given=dotted_names(data))
+    trainer = make_trainer(env, skills, cfg)
+    sc, nc = cfg.scheduler, cfg.new_skill
+    replay = trainer.replay
+    state = jax.jit(trainer.init)(jax.random.PRNGKey(0))
+    step = jax.jit(lambda s: trainer.collect_insert(s, s.key)[0].replace(key=jax.random.fold_in(s.key, 1)))
+    for _ in range(args.fill):
+        state = step(state)
+
+    def sched(ts, key):
+        return run_learner(learners.scheduler_learner_update,
+                           lambda k: replay.sample_scheduler(ts.replay, ts.normalizer, k), sc, ts.scheduler, key,
+                           trainer.scheduler_updates, True)[0]
+
+    def new(ts, key):
+        return run_learner(learners.new_skill_learner_update,
+                           lambda k: replay.sample_new_skill(ts.replay, ts.normalizer, k), nc, ts.new_skill, key,
+                           trainer.new_skill_updates, True)[0]
+
+    key = jax.random.PRNGKey(1)
+    parts = {"acting + insert": best_of(jax.jit(lambda s: trainer.collect_insert(s, key)[0]), state)}
+    if trainer.scheduler_updates:
+        parts["scheduler updates"] = best_of(jax.jit(sched), state, key)
+    parts["new-skill updates"] = best_of(jax.jit(new), state, key)
+    evaluate = make_evaluation(env, trainer, int(env.episode_length), 0)
+    parts[f"evaluation / {args.eval_every}"] = best_of(lambda s: evaluate(s, 0), state, repeats=2) / args.eval_every
+
+    whole = best_of(jax.jit(lambda s: trainer.iteration(s)[0]), state)
+    total = sum(parts.values())
+    print(f"{args.task}, recipe {cfg.recipe}, {cfg.num_envs} envs, backend {jax.default_backend()} "
+          f"({jax.device_count()} device(s))")
+    print(describe_schedule(learner_schedule(cfg)))
+    print(f"{'part':<22} {'ms / iteration':>15} {'share':>7}")
+    for name, sec in parts.items():
+        print(f"{name:<22} {1e3 * sec:15.1f} {sec / total:7.1%}")
+    print(f"{'sum of the parts':<22} {1e3 * total:15.1f}   -> {cfg.steps_per_iteration / total:,.0f} env steps/s")
+    print(f"{'one whole iteration':<22} {1e3 * whole:15.1f}   (acting + both learners in one jitted call)")
+
+
+if __name__ == "__main__":
+    main()
