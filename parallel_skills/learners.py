@@ -46,7 +46,7 @@ from parallel_skills.hcmpo import (critic_target, e_step_weights, m_step_loss, m
                                    temperature_dual_loss)
 from parallel_skills.mpo import gaussian_mpo_loss
 from parallel_skills.networks import (GaussianPolicy, QCritic, QEnsemble, SchedulerCritic, SchedulerPolicy,
-                                      all_pairs, categorical_entropy, pair_values, gaussian_log_prob,
+                                      categorical_entropy, pair_values, gaussian_log_prob,
                                       joint_log_probs, sample_action)
 
 from parallel_skills.replay import Transition
@@ -176,11 +176,9 @@ class SchedulerAux(NamedTuple):
     logits_k: jax.Array
 
 
-def _scheduler_pairs(num_skills: int, config: SchedulerConfig):
-    """(pair_i, pair_k, pair_kv) [P]: every (skill, length index, length value) pair; then the
-    skill lengths K [M] (the counter values a fresh decision sets)."""
-    return tuple(jnp.asarray(a) for a in all_pairs(num_skills, config.skill_lengths)) + (
-        jnp.asarray(config.skill_lengths, jnp.int32),)
+def _skill_lengths(config: SchedulerConfig) -> jax.Array:
+    """K [M] int32: the counter values a fresh decision sets (one critic head row each)."""
+    return jnp.asarray(config.skill_lengths, jnp.int32)
 
 
 def _read_pair(table_row, skill, k_idx, num_lengths: int):
@@ -193,12 +191,11 @@ def _tile(x, b: int):
     return jnp.broadcast_to(x[None, :], (b, x.shape[0]))
 
 
-def scheduler_targets(state: LearnerState, batch: Transition, networks, pairs,
+def scheduler_targets(state: LearnerState, batch: Transition, networks, lengths,
                       config: SchedulerConfig) -> SchedulerTargets:
     """Eq. 3's target with the target policy and critic at s' (the expectation over (i', k')
     exact), and π_old = the target policy at s."""
     policy, critic = networks
-    lengths = pairs[3]
     b = batch.obs.shape[0]
     c = batch.c
     t_li_next, t_lk_next = policy.apply(state.target_policy_params, batch.next_obs)
@@ -214,7 +211,7 @@ def scheduler_targets(state: LearnerState, batch: Transition, networks, pairs,
     return SchedulerTargets(y=y, log_prior=log_prior)
 
 
-def scheduler_loss(params, steps, batch: Transition, targets: SchedulerTargets, networks, pairs,
+def scheduler_loss(params, steps, batch: Transition, targets: SchedulerTargets, networks, lengths,
                    config: SchedulerConfig) -> Tuple[jax.Array, SchedulerAux]:
     """Critic: 0.5·(Q(s, c, i, k) − y)² over weighted rows. Policy (Eq. 4, only on weighted
     decision rows): E-step weights q(z|s) ∝ π_old·exp(Q(s, c=k, z)/η) with the temperature dual,
@@ -222,7 +219,6 @@ def scheduler_loss(params, steps, batch: Transition, targets: SchedulerTargets, 
     ``params`` = (policy, critic, dual)."""
     policy_params, critic_params, dual_params = params
     policy, critic = networks
-    lengths = pairs[3]
     b = batch.obs.shape[0]
     dmask = batch.weight * batch.is_decision.astype(jnp.float32)
     table = critic.apply(critic_params, batch.obs,
@@ -272,10 +268,10 @@ def scheduler_learner_update(state: LearnerState, batch: Transition, key: jax.Ar
     del key
     num_skills = int(state.policy_params["params"]["head_i"]["bias"].shape[0])
     networks = scheduler_networks(num_skills, config)
-    pairs = _scheduler_pairs(num_skills, config)
+    lengths = _skill_lengths(config)
     batch = _as_float32(batch)
-    targets = scheduler_targets(state, batch, networks, pairs, config)
-    grads, aux = jax.grad(lambda p: scheduler_loss(p, state.steps, batch, targets, networks, pairs, config),
+    targets = scheduler_targets(state, batch, networks, lengths, config)
+    grads, aux = jax.grad(lambda p: scheduler_loss(p, state.steps, batch, targets, networks, lengths, config),
                           has_aux=True)((state.policy_params, state.critic_params, state.dual_params))
     return _learner_step(state, grads, config, update_duals=True), scheduler_stats(aux, batch)
 

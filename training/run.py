@@ -37,9 +37,9 @@ from training.logging_utils import Progress, TensorBoardLogger, format_row, resi
 from training.rundir import RunRecord
 from parallel_skills.config import RECIPES, TrainConfig
 
-# CPU: the README quickstart must end within 15 minutes on 2 cores (kinematic lift, seed 0: ≈ 0.4
-# success after 160k steps, 0.8-0.97 from 260k; other seeds are slower; docs/learning.md, README).
-DEFAULT_TIMESTEPS = {"cpu": 160_000, "accelerator": 20_000_000}
+# CPU: the README quickstart must end within 10 minutes on 2 cores (kinematic lift, CPU recipe,
+# seed 0: 0.84 at 218k and 256k; other seeds are slower; README, docs/scaling.md).
+DEFAULT_TIMESTEPS = {"cpu": 256_000, "accelerator": 20_000_000}
 # Flags whose defaults are applied after parsing (None = "not given": --resume rejects given flags
 # that conflict with the run's config.json).
 DEFAULTS = dict(task="lift", physics="kinematic", seed=0, skills="useful", skill_source="scripted", method="skills",
@@ -69,7 +69,7 @@ def build_parser():
                         "default cpu on a CPU, parallel on an accelerator")
     p.add_argument("--num_envs", type=positive_int, default=None,
                    help="default: the recipe's (CPU: 32, 1024 with --recipe parallel; accelerator: 4096)")
-    p.add_argument("--num_timesteps", type=positive_int, default=None, help="env steps (default: 160k on CPU, 20M on GPU)")
+    p.add_argument("--num_timesteps", type=positive_int, default=None, help="env steps (default: 256k on CPU, 20M on GPU)")
     p.add_argument("--episode_length", type=positive_int, default=None)
     p.add_argument("--seed", type=nonnegative_int, default=None, help="default 0")
     p.add_argument("--skills", default=None, help=f"skill set: {', '.join(SET_NAMES)}; default useful")
