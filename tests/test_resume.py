@@ -44,8 +44,8 @@ def _args(tmp, out, *extra, iterations=ITERATIONS):
 def _rows(run):
     with open(os.path.join(run, "metrics.csv"), newline="") as f:
         rows = list(csv.reader(f))
-    wall = rows[0].index("wall_time")
-    return [r[:wall] + r[wall + 1:] for r in rows]  # all but the wall-clock time
+    machine = [rows[0].index(c) for c in ("wall_time", "rss_mb") if c in rows[0]]
+    return [[x for n, x in enumerate(r) if n not in machine] for r in rows]  # all but wall clock and memory
 
 
 def _npz(path):
