@@ -46,7 +46,7 @@ from parallel_skills.hcmpo import (critic_target, e_step_weights, m_step_loss, m
                                    temperature_dual_loss)
 from parallel_skills.mpo import gaussian_mpo_loss
 from parallel_skills.networks import (GaussianPolicy, QCritic, QEnsemble, SchedulerCritic, SchedulerPolicy,
-                                      categorical_entropy, pair_values, gaussian_log_prob,
+                                      categorical_entropy, gaussian_log_prob, pair_values, read_pairs,
                                       joint_log_probs, sample_action)
 
 from parallel_skills.replay import Transition
@@ -181,12 +181,6 @@ def _skill_lengths(config: SchedulerConfig) -> jax.Array:
     return jnp.asarray(config.skill_lengths, jnp.int32)
 
 
-def _read_pair(table_row, skill, k_idx, num_lengths: int):
-    """Q of each row's own pair from one table row per state: [B, P], [B], [B] -> [B]."""
-    pair = jnp.asarray(skill, jnp.int32) * num_lengths + jnp.asarray(k_idx, jnp.int32)
-    return jnp.take_along_axis(table_row, pair[:, None], axis=1)[:, 0]
-
-
 def _tile(x, b: int):
     return jnp.broadcast_to(x[None, :], (b, x.shape[0]))
 
@@ -204,7 +198,7 @@ def scheduler_targets(state: LearnerState, batch: Transition, networks, lengths,
     table = critic.apply(state.target_critic_params, batch.next_obs,
                          jnp.concatenate([_tile(lengths, b), jnp.maximum(c - 1, 1)[:, None]], axis=1))
     q_fresh_next = pair_values(table[:, :-1], lengths.shape[0])  # [B, P]: Q'(s', K, i, k)
-    q_cont_next = _read_pair(table[:, -1], batch.skill, batch.k_idx, lengths.shape[0])  # [B]
+    q_cont_next = read_pairs(table[:, -1], batch.skill, batch.k_idx, lengths.shape[0])  # [B]
     y = critic_target(batch.reward, batch.discount, c, q_cont_next, q_fresh_next, probs_next, config.discount)
     t_li, t_lk = policy.apply(state.target_policy_params, batch.obs)
     log_prior = jax.lax.stop_gradient(joint_log_probs(t_li, t_lk))  # [B, P]
@@ -223,7 +217,7 @@ def scheduler_loss(params, steps, batch: Transition, targets: SchedulerTargets, 
     dmask = batch.weight * batch.is_decision.astype(jnp.float32)
     table = critic.apply(critic_params, batch.obs,
                          jnp.concatenate([batch.c[:, None], _tile(lengths, b)], axis=1))  # [B, 1 + M, P]
-    q = _read_pair(table[:, 0], batch.skill, batch.k_idx, lengths.shape[0])  # [B]: Q(s, c, i, k)
+    q = read_pairs(table[:, 0], batch.skill, batch.k_idx, lengths.shape[0])  # [B]: Q(s, c, i, k)
     critic_loss = masked_mean(0.5 * jnp.square(q - targets.y), batch.weight)
     q_fresh = jax.lax.stop_gradient(pair_values(table[:, 1:], lengths.shape[0]))  # Q(s, c=k, i, k), all pairs
     temperature = positive(dual_params["log_temperature"])

@@ -220,8 +220,13 @@ class SchedulerCritic(nn.Module):
         table = nn.Dense(self.num_skills * self.num_lengths, name="head_out")(x)  # [B, U, (N+1)·M]
         if i is None:
             return table
-        pair = jnp.asarray(i, jnp.int32) * self.num_lengths + jnp.asarray(k_idx, jnp.int32)  # [B, P]
-        return jnp.take_along_axis(table, pair[..., None], axis=-1)[..., 0]
+        return read_pairs(table, i, k_idx, self.num_lengths)
+
+
+def read_pairs(table: jnp.ndarray, i, k_idx, num_lengths: int) -> jnp.ndarray:
+    """Q of pair (i, k_idx) from a critic table row: table [..., (N+1)·M], i / k_idx [...] -> [...]."""
+    pair = jnp.asarray(i, jnp.int32) * num_lengths + jnp.asarray(k_idx, jnp.int32)
+    return jnp.take_along_axis(table, pair[..., None], axis=-1)[..., 0]
 
 
 def pair_values(table: jnp.ndarray, num_lengths: int) -> jnp.ndarray:
