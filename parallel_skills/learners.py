@@ -378,10 +378,12 @@ def new_skill_loss(params, batch: Transition, targets: NewSkillTargets, networks
     obs, action, weight = batch.obs, batch.action, batch.weight
     mean, std = policy.apply(policy_params, obs)
     a_j = jax.lax.stop_gradient(_sample_n(mean, std, j, key_crr))
-    actions = jnp.concatenate([action[:, None], a_j] + ([targets.mpo_actions] if use_mpo else []),
-                              axis=1)  # [B, 1 + J (+ n_mpo), A]
-    q_ens = critic_values(critic, critic_params, _tile_obs(obs, 1 + j + n_mpo), actions)  # [B, 1 + J (+ n_mpo), E]
-    q = q_ens[:, 0]  # [B, E]: every critic regresses on the same target
+    q = critic_values(critic, critic_params, obs, action)  # [B, E]: every critic regresses on the same target
+    # The sampled actions' values only feed the (stop-gradient) advantage and MPO weights: evaluated
+    # with stop-gradient parameters, so that the backward pass runs on the stored actions' rows alone.
+    sampled = jnp.concatenate([a_j] + ([targets.mpo_actions] if use_mpo else []), axis=1)  # [B, J (+ n_mpo), A]
+    q_sampled = critic_values(critic, jax.lax.stop_gradient(critic_params), _tile_obs(obs, j + n_mpo), sampled)
+    q_ens = jnp.concatenate([q[:, None], q_sampled], axis=1)  # [B, 1 + J (+ n_mpo), E]
     critic_loss = masked_mean(jnp.sum(0.5 * jnp.square(q - targets.y[:, None]), axis=-1), weight)
     q_all = jnp.min(q_ens, axis=-1)  # advantages from the clipped (minimum) estimate
     q_sg = jax.lax.stop_gradient(q_all)

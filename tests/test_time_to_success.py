@@ -34,3 +34,13 @@ def test_ratios_to_the_reference(tmp_path, capsys):
     assert "not reached by 1,000 env steps" in out
     with pytest.raises(SystemExit):
         main([str(tmp_path / "missing")])
+
+
+def test_budget_ratio_and_bad_budget(tmp_path, capsys):
+    fast = _run(tmp_path, "fast", [(1000, 150.0, 0.2), (2000, 330.0, 0.81)])
+    main([fast, "--budget_seconds", "300"])
+    row = capsys.readouterr().out.splitlines()[2]
+    assert row.split()[-1] == "1.10"  # 330 s against a 300 s budget: over it
+    with pytest.raises(SystemExit) as e:
+        main([fast, "--budget_seconds", "0"])
+    assert e.value.code == 2 and "--budget_seconds must be a positive" in capsys.readouterr().err

@@ -4,7 +4,8 @@ as ratios to a reference run (the first): how recipes compare in sample efficien
     python -m training.experiments.time_to_success runs/lift-cpu-s0 runs/lift-parallel-s0 --threshold 0.8
 
 Reads each run's metrics.csv (one row per evaluation). ``--consecutive N``: the threshold must hold at
-N evaluations in a row (the first of them counts). A run that never reaches it is reported with its
+N evaluations in a row (the first of them counts). ``--budget_seconds S``: also each run's wall time
+as a ratio to a time budget S (≤ 1: within it), e.g. 300 for "≤ 5 minutes". A run that never reaches it is reported with its
 last row ("not reached by …") and no ratio. Wall time is the training time metrics.csv records
 (compilation included, evaluations included).
 """
@@ -33,6 +34,8 @@ def main(argv=None):
     p.add_argument("--threshold", type=float, default=0.8)
     p.add_argument("--consecutive", type=int, default=1)
     p.add_argument("--key", default="eval/new_skill_success", help="metrics.csv column")
+    p.add_argument("--budget_seconds", type=float, default=None,
+                   help="also print each run's wall time to success / this budget (<= 1: within it)")
     args = p.parse_args(sys.argv[1:] if argv is None else argv)
 
     def run():
@@ -40,6 +43,8 @@ def main(argv=None):
             raise UsageError(f"--threshold must be in [0, 1], got {args.threshold}")
         if args.consecutive < 1:
             raise UsageError(f"--consecutive must be a positive integer, got {args.consecutive}")
+        if args.budget_seconds is not None and not args.budget_seconds > 0:
+            raise UsageError(f"--budget_seconds must be a positive number of seconds, got {args.budget_seconds}")
         results = []
         for d in args.runs:
             path = os.path.join(d, "metrics.csv")
@@ -52,7 +57,9 @@ def main(argv=None):
         ref = results[0][1]
         print(f"{args.key} >= {args.threshold:g}" + (f" ({args.consecutive} evaluations in a row)"
                                                          if args.consecutive > 1 else ""))
-        print(f"{'run':<40} {'env steps':>11} {'wall s':>8} {'steps ratio':>12} {'time ratio':>11}")
+        budget = args.budget_seconds
+        print(f"{'run':<40} {'env steps':>11} {'wall s':>8} {'steps ratio':>12} {'time ratio':>11}"
+              + (f" {'/ budget':>9}" if budget else ""))
         for d, hit, last in results:
             if hit is None:
                 print(f"{d:<40} not reached by {int(last['env_steps']):,} env steps ({last['wall_time']:.0f} s; "
@@ -61,7 +68,10 @@ def main(argv=None):
             steps, wall = int(hit["env_steps"]), float(hit["wall_time"])
             ratios = ("", "") if ref is None else (f"{steps / int(ref['env_steps']):.2f}",
                                                    f"{wall / float(ref['wall_time']):.2f}")
-            print(f"{d:<40} {steps:>11,} {wall:>8.0f} {ratios[0]:>12} {ratios[1]:>11}")
+            print(f"{d:<40} {steps:>11,} {wall:>8.0f} {ratios[0]:>12} {ratios[1]:>11}"
+                  + (f" {wall / budget:>9.2f}" if budget else ""))
+        if budget:
+            print(f"budget {budget:g} s: / budget = wall time to success / budget (<= 1: within it)")
 
     main_guard(run)
 
