@@ -6,8 +6,9 @@ limit). FLOPs are XLA's own count of the compiled update (``cost_analysis``).
     python bench/learner_scaling.py                           # kinematic lift sizes, useful skills
     python bench/learner_scaling.py --batches 256,4096 --task stack --skills useful+distractors
 
-The scheduler's batch is augmented (paper §4.4): an update of batch b reads 2·b rows; "samples/s"
-counts the b sampled rows, as samples-per-insert does.
+The scheduler's batch is augmented (paper §4.4): an update of batch b learns from 2·b labelled rows
+of b states (the networks run once per state); "samples/s" counts the b sampled rows, as
+samples-per-insert does.
 """
 
 from __future__ import annotations
@@ -20,7 +21,6 @@ import jax.numpy as jnp
 
 import tasks
 from parallel_skills import learners
-from parallel_skills.augmentation import with_augmentation
 from parallel_skills.config import NewSkillConfig, SchedulerConfig
 from parallel_skills.replay import Transition
 from training import skill_library
@@ -88,8 +88,7 @@ def main():
     for b in (int(x) for x in args.batches.split(",")):
         batch = random_batch(jax.random.fold_in(key, b), b, obs_size, action_size, num_skills, sc.skill_lengths)
         cases = (
-            ("scheduler", lambda s, bt, k: learners.scheduler_learner_update(
-                s, with_augmentation(bt, sc.skill_lengths), k, sc), sched_state),
+            ("scheduler", lambda s, bt, k: learners.scheduler_learner_update(s, bt, k, sc), sched_state),
             ("new_skill", lambda s, bt, k: learners.new_skill_learner_update(s, bt, k, nc), new_state),
         )
         for name, fn, state in cases:

@@ -40,6 +40,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from parallel_skills.augmentation import augment_batch
 from parallel_skills.config import NewSkillConfig, SchedulerConfig
 from parallel_skills.crr import crr_advantage, crr_policy_loss, crr_weights, td_target
 from parallel_skills.hcmpo import (critic_target, e_step_weights, m_step_loss, masked_mean, positive,
@@ -161,13 +162,13 @@ def scheduler_learner_init(key: jax.Array, obs_size: int, num_skills_total: int,
 class SchedulerTargets(NamedTuple):
     """What the scheduler's loss regresses to, from the target networks (no gradient)."""
 
-    y: jax.Array  # [B] critic target of Eq. 3
+    y: jax.Array  # [B, L] critic target of Eq. 3, per labelling
     log_prior: jax.Array  # [B, P] log π_old(z | s) of every pair z = (i, k): the target policy
 
 
 class SchedulerAux(NamedTuple):
     critic_loss: jax.Array
-    q: jax.Array  # [B] Q(s, c, i, k) of the stored labels
+    q: jax.Array  # [B, L] Q(s, c, i, k) of each labelling
     temperature: jax.Array
     alpha: jax.Array
     kl: jax.Array
@@ -185,41 +186,66 @@ def _tile(x, b: int):
     return jnp.broadcast_to(x[None, :], (b, x.shape[0]))
 
 
-def scheduler_targets(state: LearnerState, batch: Transition, networks, lengths,
+class SchedulerLabels(NamedTuple):
+    """The labellings of a scheduler batch's states, [B, L] each (L = 2 with augmentation: the
+    stored labels, then the duplicate's of App. A.2; L = 1 without). Augmented duplicates share
+    their state (obs, next_obs, reward, discount): the networks run once per state and each
+    labelling reads its own rows of the critic table."""
+
+    skill: jax.Array  # [B, L] i
+    k_idx: jax.Array  # [B, L] index of k in K
+    c: jax.Array  # [B, L] counter
+    is_decision: jax.Array  # [B, L] bool
+    weight: jax.Array  # [B, L] float (0: the duplicate does not apply, or the row is not learnt from)
+
+
+def scheduler_labels(batch: Transition, config: SchedulerConfig) -> SchedulerLabels:
+    """Labels [B, L] of ``batch`` [B]: its own, plus the augmented duplicate's (paper §4.4,
+    ``augmentation.augment_batch``) when ``config.augmentation``. Training on them is training on
+    ``augmentation.with_augmentation(batch)`` [2B] with the states evaluated once."""
+    sets = [batch] + ([augment_batch(batch, config.skill_lengths)] if config.augmentation else [])
+    stack = lambda name: jnp.stack([getattr(b, name) for b in sets], axis=1)  # noqa: E731
+    return SchedulerLabels(skill=stack("skill"), k_idx=stack("k_idx"), c=stack("c"),
+                           is_decision=stack("is_decision"), weight=stack("weight"))
+
+
+def scheduler_targets(state: LearnerState, batch: Transition, labels: SchedulerLabels, networks, lengths,
                       config: SchedulerConfig) -> SchedulerTargets:
-    """Eq. 3's target with the target policy and critic at s' (the expectation over (i', k')
-    exact), and π_old = the target policy at s."""
+    """Eq. 3's target [B, L] with the target policy and critic at s' (the expectation over
+    (i', k') exact), and π_old = the target policy at s."""
     policy, critic = networks
-    b = batch.obs.shape[0]
-    c = batch.c
+    b, m = batch.obs.shape[0], lengths.shape[0]
     t_li_next, t_lk_next = policy.apply(state.target_policy_params, batch.next_obs)
     probs_next = jnp.exp(joint_log_probs(t_li_next, t_lk_next))  # [B, P]
-    # One head row per distinct counter value: c' = each K (fresh decisions) and c − 1 (continuing).
+    # One head row per distinct counter value: c' = each K (fresh decisions) and c − 1 (continuing,
+    # one per labelling).
     table = critic.apply(state.target_critic_params, batch.next_obs,
-                         jnp.concatenate([_tile(lengths, b), jnp.maximum(c - 1, 1)[:, None]], axis=1))
-    q_fresh_next = pair_values(table[:, :-1], lengths.shape[0])  # [B, P]: Q'(s', K, i, k)
-    q_cont_next = read_pairs(table[:, -1], batch.skill, batch.k_idx, lengths.shape[0])  # [B]
-    y = critic_target(batch.reward, batch.discount, c, q_cont_next, q_fresh_next, probs_next, config.discount)
+                         jnp.concatenate([_tile(lengths, b), jnp.maximum(labels.c - 1, 1)], axis=1))
+    q_fresh_next = pair_values(table[:, :m], m)  # [B, P]: Q'(s', K, i, k)
+    q_cont_next = read_pairs(table[:, m:], labels.skill, labels.k_idx, m)  # [B, L]
+    y = critic_target(batch.reward[:, None], batch.discount[:, None], labels.c, q_cont_next,
+                      q_fresh_next[:, None], probs_next[:, None], config.discount)  # [B, L]
     t_li, t_lk = policy.apply(state.target_policy_params, batch.obs)
     log_prior = jax.lax.stop_gradient(joint_log_probs(t_li, t_lk))  # [B, P]
     return SchedulerTargets(y=y, log_prior=log_prior)
 
 
-def scheduler_loss(params, steps, batch: Transition, targets: SchedulerTargets, networks, lengths,
-                   config: SchedulerConfig) -> Tuple[jax.Array, SchedulerAux]:
-    """Critic: 0.5·(Q(s, c, i, k) − y)² over weighted rows. Policy (Eq. 4, only on weighted
-    decision rows): E-step weights q(z|s) ∝ π_old·exp(Q(s, c=k, z)/η) with the temperature dual,
-    M-step cross-entropy with the KL(π_old ‖ π) trust region; zero during the policy warm-up.
+def scheduler_loss(params, steps, batch: Transition, labels: SchedulerLabels, targets: SchedulerTargets,
+                   networks, lengths, config: SchedulerConfig) -> Tuple[jax.Array, SchedulerAux]:
+    """Critic: 0.5·(Q(s, c, i, k) − y)² over weighted rows of every labelling. Policy (Eq. 4, only
+    on weighted decision rows; a state counts once per labelling that makes it one): E-step
+    weights q(z|s) ∝ π_old·exp(Q(s, c=k, z)/η) with the temperature dual, M-step cross-entropy
+    with the KL(π_old ‖ π) trust region; zero during the policy warm-up.
     ``params`` = (policy, critic, dual)."""
     policy_params, critic_params, dual_params = params
     policy, critic = networks
-    b = batch.obs.shape[0]
-    dmask = batch.weight * batch.is_decision.astype(jnp.float32)
+    b, n_labels = labels.c.shape
+    dmask = jnp.sum(labels.weight * labels.is_decision.astype(jnp.float32), axis=1)  # [B]
     table = critic.apply(critic_params, batch.obs,
-                         jnp.concatenate([batch.c[:, None], _tile(lengths, b)], axis=1))  # [B, 1 + M, P]
-    q = read_pairs(table[:, 0], batch.skill, batch.k_idx, lengths.shape[0])  # [B]: Q(s, c, i, k)
-    critic_loss = masked_mean(0.5 * jnp.square(q - targets.y), batch.weight)
-    q_fresh = jax.lax.stop_gradient(pair_values(table[:, 1:], lengths.shape[0]))  # Q(s, c=k, i, k), all pairs
+                         jnp.concatenate([labels.c, _tile(lengths, b)], axis=1))  # [B, L + M, P]
+    q = read_pairs(table[:, :n_labels], labels.skill, labels.k_idx, lengths.shape[0])  # [B, L]: Q(s, c, i, k)
+    critic_loss = masked_mean(0.5 * jnp.square(q - targets.y), labels.weight)
+    q_fresh = jax.lax.stop_gradient(pair_values(table[:, n_labels:], lengths.shape[0]))  # Q(s, c=k, i, k), all pairs
     temperature = positive(dual_params["log_temperature"])
     alpha = positive(dual_params["log_alpha"])
     weights = e_step_weights(q_fresh, targets.log_prior, temperature)
@@ -233,11 +259,11 @@ def scheduler_loss(params, steps, batch: Transition, targets: SchedulerTargets, 
     return critic_loss + policy_loss, aux
 
 
-def scheduler_stats(aux: SchedulerAux, batch: Transition) -> Dict[str, jax.Array]:
-    """Scalars to log of one scheduler update."""
-    weight = batch.weight
-    dmask = weight * batch.is_decision.astype(jnp.float32)
-    q = aux.q
+def scheduler_stats(aux: SchedulerAux, labels: SchedulerLabels) -> Dict[str, jax.Array]:
+    """Scalars to log of one scheduler update (over the rows of every labelling)."""
+    weight = labels.weight  # [B, L]
+    dmask = weight * labels.is_decision.astype(jnp.float32)
+    q = aux.q  # [B, L]
     return dict(
         critic_loss=aux.critic_loss,
         q_mean=masked_mean(q, weight),
@@ -246,8 +272,8 @@ def scheduler_stats(aux: SchedulerAux, batch: Transition) -> Dict[str, jax.Array
         alpha=aux.alpha,
         kl=aux.kl,
         policy_loss=aux.policy_loss,
-        policy_entropy_i=masked_mean(categorical_entropy(aux.logits_i), weight),
-        policy_entropy_k=masked_mean(categorical_entropy(aux.logits_k), weight),
+        policy_entropy_i=masked_mean(categorical_entropy(aux.logits_i)[:, None], weight),
+        policy_entropy_k=masked_mean(categorical_entropy(aux.logits_k)[:, None], weight),
         decision_fraction=jnp.sum(dmask) / jnp.maximum(jnp.sum(weight), 1.0),
     )
 
@@ -256,18 +282,21 @@ def scheduler_learner_update(state: LearnerState, batch: Transition, key: jax.Ar
                              config: SchedulerConfig) -> Tuple[LearnerState, Dict[str, jax.Array]]:
     """One HCMPO update (paper Eq. 3 critic, Eq. 4 policy improvement) on ``batch`` [B]
     (``replay.Transition``: obs, next_obs, reward, discount, skill, k_idx, c, is_decision, weight;
-    rows with weight 0 are ignored everywhere). Augmented duplicates are just extra rows
-    (``augmentation.with_augmentation``). ``key`` is unused (the expectations are exact) and kept
-    for interface symmetry."""
+    rows with weight 0 are ignored everywhere). With ``config.augmentation`` every row is also
+    learnt from with its augmented labels (paper §4.4; ``scheduler_labels``): the same update as
+    on ``augmentation.with_augmentation(batch)`` without augmentation, with the networks run once
+    per state. ``key`` is unused (the expectations are exact) and kept for interface symmetry."""
     del key
     num_skills = int(state.policy_params["params"]["head_i"]["bias"].shape[0])
     networks = scheduler_networks(num_skills, config)
     lengths = _skill_lengths(config)
     batch = _as_float32(batch)
-    targets = scheduler_targets(state, batch, networks, lengths, config)
-    grads, aux = jax.grad(lambda p: scheduler_loss(p, state.steps, batch, targets, networks, lengths, config),
-                          has_aux=True)((state.policy_params, state.critic_params, state.dual_params))
-    return _learner_step(state, grads, config, update_duals=True), scheduler_stats(aux, batch)
+    labels = scheduler_labels(batch, config)
+    targets = scheduler_targets(state, batch, labels, networks, lengths, config)
+    grads, aux = jax.grad(
+        lambda p: scheduler_loss(p, state.steps, batch, labels, targets, networks, lengths, config),
+        has_aux=True)((state.policy_params, state.critic_params, state.dual_params))
+    return _learner_step(state, grads, config, update_duals=True), scheduler_stats(aux, labels)
 
 
 def _as_float32(batch: Transition) -> Transition:

@@ -4,7 +4,7 @@
 One flashbax item buffer holds every low-level transition, whichever skill acted; both learners
 sample it, each with its own batch size (two flashbax views of the same buffer state). Inserting
 is O(rows inserted), never O(buffer). Samples are normalised with the observation statistics at
-sampling time; the scheduler's batch is augmented there (paper §4.4).
+sampling time; the scheduler's learner adds the augmented labels (paper §4.4).
 """
 
 from __future__ import annotations
@@ -19,7 +19,6 @@ from flax import struct
 
 from parallel_skills import normalization as obs_norm
 from parallel_skills import nstep
-from parallel_skills.augmentation import with_augmentation
 
 
 @struct.dataclass
@@ -114,8 +113,6 @@ class Replay:
     action_size: int
     scheduler_batch_size: int
     new_skill_batch_size: int
-    skill_lengths: tuple
-    augmentation: bool
     n_step: int = 1
     discount: float = 0.99
 
@@ -161,12 +158,10 @@ class Replay:
         return self._buffer(self.scheduler_batch_size).add(state, flat), pending
 
     def sample_scheduler(self, state, normalizer, key) -> Transition:
-        """A scheduler batch [2·batch] (originals, then their augmented duplicates) or [batch]
-        without augmentation; observations normalised."""
+        """A scheduler batch [batch] with normalised observations and no actions ([batch, 0]: the
+        scheduler reads none). Its learner adds the augmented labels (``learners.scheduler_labels``)."""
         rows = self._buffer(self.scheduler_batch_size).sample(state, key).experience
-        # The scheduler reads no action: [B, 0], so augmentation does not copy the actions.
-        batch = _normalized(rows.one_step().replace(action=rows.action[:, :0]), normalizer)
-        return with_augmentation(batch, self.skill_lengths) if self.augmentation else batch
+        return _normalized(rows.one_step().replace(action=rows.action[:, :0]), normalizer)
 
     def sample_new_skill(self, state, normalizer, key) -> Transition:
         """A new-skill batch [batch] with normalised observations; with n_step > 1 its reward,

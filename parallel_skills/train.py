@@ -86,8 +86,7 @@ def make_replay(environment, config: TrainConfig) -> Replay:
     capacity = max(int(config.replay_size), config.steps_per_iteration, sc.batch_size, nc.batch_size)
     return Replay(capacity=capacity, num_envs=int(config.num_envs), obs_size=int(environment.observation_size),
                   action_size=int(environment.action_size), scheduler_batch_size=sc.batch_size,
-                  new_skill_batch_size=nc.batch_size, skill_lengths=tuple(sc.skill_lengths),
-                  augmentation=sc.augmentation, n_step=int(nc.n_step), discount=nc.discount)
+                  new_skill_batch_size=nc.batch_size, n_step=int(nc.n_step), discount=nc.discount)
 
 
 def run_learner(update, sample, config, state, key, num_updates: int, ready):

@@ -75,11 +75,10 @@ def test_scheduler_init_probs_and_apply():
 
 def test_scheduler_updates_finite_and_critic_loss_decreases(sched_run):
     state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, SCFG)
-    base = _scheduler_batch(jax.random.PRNGKey(1))
-    assert 0 < int(base.is_decision.sum()) < B
-    batch = with_augmentation(base, K)  # [2B]: originals + duplicates (weight 0 where not applicable)
-    assert batch.obs.shape == (2 * B, O)
-    assert 0 < float(batch.weight[B:].sum()) < B
+    batch = _scheduler_batch(jax.random.PRNGKey(1))
+    assert 0 < int(batch.is_decision.sum()) < B
+    both = with_augmentation(batch, K)  # [2B]: the rows the learner trains on (originals + duplicates)
+    assert 0 < float(both.weight[B:].sum()) < B
     new_state, metrics = sched_run(state, batch, jax.random.PRNGKey(2))
     expected = {"critic_loss", "q_mean", "q_max", "temperature", "alpha", "kl", "policy_entropy_i",
                 "policy_entropy_k", "decision_fraction", "policy_loss"}
@@ -88,7 +87,7 @@ def test_scheduler_updates_finite_and_critic_loss_decreases(sched_run):
     loss = np.asarray(metrics["critic_loss"])
     assert loss[-5:].mean() < 0.5 * loss[:5].mean(), loss
     assert int(new_state.steps) == 50
-    w, d = np.asarray(batch.weight), np.asarray(batch.is_decision)
+    w, d = np.asarray(both.weight), np.asarray(both.is_decision)
     np.testing.assert_allclose(metrics["decision_fraction"][0], (w * d).sum() / w.sum(), rtol=1e-6)
     # Targets were hard-copied at step 50 (period 5).
     for a, b in zip(jax.tree_util.tree_leaves(new_state.target_critic_params),
@@ -98,8 +97,11 @@ def test_scheduler_updates_finite_and_critic_loss_decreases(sched_run):
 
 def test_scheduler_no_decision_rows_gives_zero_policy_loss(sched_run):
     state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, SCFG)
-    batch = with_augmentation(_scheduler_batch(jax.random.PRNGKey(1)), K)
-    batch = batch.replace(weight=jnp.asarray(jnp.where(batch.is_decision, 0.0, batch.weight), jnp.float32))
+    # No decision rows in either labelling: drop the rows that are decisions in one of them.
+    batch = _scheduler_batch(jax.random.PRNGKey(1))
+    both = with_augmentation(batch, K)
+    decides = both.is_decision[:B] | (both.is_decision[B:] & (both.weight[B:] > 0))
+    batch = batch.replace(weight=jnp.where(decides, 0.0, batch.weight).astype(jnp.float32))
     new_state, metrics = sched_run(state, batch, jax.random.PRNGKey(2))
     np.testing.assert_array_equal(metrics["policy_loss"], 0.0)
     np.testing.assert_array_equal(metrics["decision_fraction"], 0.0)
@@ -118,10 +120,30 @@ def test_scheduler_policy_moves_towards_best_pair(sched_run):
     base = _scheduler_batch(jax.random.PRNGKey(3))
     base = base.replace(reward=(base.skill == 2).astype(jnp.float32), is_decision=jnp.ones(B, bool),
                         c=jnp.asarray(K, jnp.int32)[base.k_idx])
-    batch = with_augmentation(base, K)
-    new_state, _ = sched_run(state, batch, jax.random.PRNGKey(4))
+    new_state, _ = sched_run(state, base, jax.random.PRNGKey(4))
     li, _ = make_scheduler_apply(N1, SCFG)(new_state.policy_params, base.obs)
     assert float(jax.nn.softmax(li)[:, 2].mean()) > 0.4
+
+
+def test_scheduler_learns_augmented_labels_as_duplicate_rows():
+    """The learner's augmentation (labels [B, 2], states evaluated once) is the update on the
+    batch followed by its augmented duplicate rows ([2B], augmentation.with_augmentation) without
+    augmentation: same parameters and metrics up to float reordering."""
+    state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, SCFG)
+    batch = _scheduler_batch(jax.random.PRNGKey(5))
+    update = jax.jit(scheduler_learner_update, static_argnames="config")
+    s_aug, m_aug = update(state, batch, jax.random.PRNGKey(6), config=SCFG)
+    s_rows, m_rows = update(state, with_augmentation(batch, K), jax.random.PRNGKey(6),
+                            config=dataclasses.replace(SCFG, augmentation=False))
+    for a, b in zip(jax.tree_util.tree_leaves(s_aug), jax.tree_util.tree_leaves(s_rows)):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+    for name in m_rows:
+        np.testing.assert_allclose(m_aug[name], m_rows[name], rtol=1e-5, atol=1e-6, err_msg=name)
+    assert float(m_aug["critic_loss"]) > 0 and float(m_aug["decision_fraction"]) > 0
+    # Without augmentation the duplicate rows are not learnt from: a different update.
+    s_plain, _ = update(state, batch, jax.random.PRNGKey(6), config=dataclasses.replace(SCFG, augmentation=False))
+    assert not np.allclose(s_plain.critic_params["params"]["head_out"]["kernel"],
+                           s_aug.critic_params["params"]["head_out"]["kernel"])
 
 
 def test_new_skill_init_apply_and_updates(newskill_run):
