@@ -93,6 +93,16 @@ class SchedulerConfig:
         return max(self.skill_lengths)
 
 
+BASELINES = ("mpo", "kl_reg", "dagger")
+# Methods whose new-skill loss reads the frozen skills' actions (NewSkillConfig.baseline of the
+# same name), and the CRR mix α they take unless given (the paper sweeps {0, 0.5, 1}).
+TEACHER_METHODS = ("kl_reg", "dagger")
+# Baselines that mix their loss with CRR (App. B) take this α unless given (the paper sweeps
+# {0, 0.5, 1} and reports the best; README "Baselines").
+MIX_METHODS = ("kl_reg", "dagger", "rhpo")
+TEACHER_METHOD_ALPHA = 0.5
+
+
 @dataclasses.dataclass(frozen=True)
 class NewSkillConfig:
     """CRR new-skill learner (paper §4.2, App. B, B.3; Wang et al. 2020)."""
@@ -120,8 +130,17 @@ class NewSkillConfig:
     # trajectories of length 10, App. B.3). 1: one-step TD over single transitions (the layout and
     # numerics of runs from before this field). Uncorrected returns of the behaviour's next n steps.
     n_step: int = 1
-    # α = 1: pure CRR; α < 1: loss = α·CRR + (1 − α)·MPO (App. B "baselines").
+    # α = 1: pure CRR; α < 1: loss = α·CRR + (1 − α)·L_baseline (App. B: every baseline shares
+    # this mix and the paper sweeps α ∈ {0, 0.5, 1}).
     mpo_alpha: float = 1.0
+    # L_baseline (``BASELINES``; parallel_skills.baseline_losses): "mpo" Gaussian MPO (Abdolmaleki
+    # et al. 2018); "kl_reg" MPO whose E-step samples the frozen skills' mixture π₀ as prior and
+    # proposal, KL(q ‖ π₀) ≤ mpo_epsilon (the paper sweeps ε ∈ {0.1, 1, 100}); "dagger"
+    # dagger_alpha·(−E_π₀ log π) + (1 − dagger_alpha)·MPO (α_D ∈ {0, 0.5, 1}). The last two read the
+    # skills' actions at the batch's states (``train.make_trainer`` passes them for
+    # ``TrainConfig.method`` kl_reg / dagger, which set this field in ``resolve``).
+    baseline: str = "mpo"
+    dagger_alpha: float = 1.0
     mpo_num_samples: int = 20  # sampled actions for the Gaussian MPO E-step.
     mpo_epsilon: float = 0.1
     mpo_epsilon_mean: float = 5e-3
@@ -148,6 +167,10 @@ class NewSkillConfig:
             raise ValueError(f"n_step must be a positive integer, got {self.n_step}")
         if not 0.0 <= self.mpo_alpha <= 1.0:
             raise ValueError(f"mpo_alpha must be in [0, 1], got {self.mpo_alpha}")
+        if self.baseline not in BASELINES:
+            raise ValueError(f"baseline must be one of {', '.join(BASELINES)}, got {self.baseline!r}")
+        if not 0.0 <= self.dagger_alpha <= 1.0:
+            raise ValueError(f"dagger_alpha must be in [0, 1], got {self.dagger_alpha}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,7 +183,12 @@ class TrainConfig:
     num_envs: Optional[int] = None  # None: the recipe's (CPU: 32, or 1,024 for "parallel"; accelerator: 4096)
     unroll_length: int = 25  # env steps per env per iteration
     replay_size: Optional[int] = None  # CPU: 300k, accelerator: 1M (paper)
-    method: str = "skills"  # "skills" (SkillS) or "scratch" (the new skill acting alone)
+    # ``METHODS``: "skills" (SkillS). The new skill acting alone: "scratch" (no skills), "finetune"
+    # (initialised from one library skill: its parameters and observation statistics, the latter
+    # then kept fixed), "kl_reg" / "dagger" (the skills as the prior / teacher of its loss:
+    # NewSkillConfig.baseline). "rhpo": a mixture of the frozen skills and the new skill chosen at
+    # every step (parallel_skills.rhpo). Paper App. B; the README's "Baselines".
+    method: str = "skills"
     eval_episodes: int = 16
     eval_every: int = 20  # iterations between evaluations
     # Std of Gaussian noise added to the frozen skills' actions while collecting (not in
@@ -171,11 +199,14 @@ class TrainConfig:
     scheduler: SchedulerConfig = SchedulerConfig()
     new_skill: NewSkillConfig = NewSkillConfig()
 
-    METHODS = ("skills", "scratch")
+    METHODS = ("skills", "scratch", "finetune", "kl_reg", "dagger", "rhpo")
 
     def __post_init__(self):
         if self.method not in self.METHODS:
-            raise ValueError(f"method must be 'skills' or 'scratch', got {self.method!r}")
+            raise ValueError(f"method must be one of {', '.join(self.METHODS)}, got {self.method!r}")
+        if self.new_skill.baseline in TEACHER_METHODS and self.method != self.new_skill.baseline:
+            raise ValueError(f"new_skill.baseline {self.new_skill.baseline!r} reads the skills' actions: it needs "
+                             f"method {self.new_skill.baseline!r}, got method {self.method!r}")
         if self.recipe is not None and self.recipe not in RECIPES:
             raise ValueError(f"recipe must be one of {', '.join(RECIPES)} (or null: the device's), got {self.recipe!r}")
         check_ranges(self)
@@ -194,9 +225,9 @@ def updates_per_iteration(samples_per_insert: float, num_inserted: int, batch_si
 
 def learner_schedule(config: TrainConfig) -> dict:
     """What a resolved config makes the learners do per iteration: for each learner its batch
-    size, updates per iteration and sampled rows per collected env step (the scheduler's batch is
-    augmented to twice its rows: counted once, as samples-per-insert counts it). From scratch the
-    scheduler does not learn (0 updates)."""
+    size, updates per iteration and sampled rows per collected env step (the scheduler's
+    augmented labels are not counted: samples-per-insert counts sampled rows). Without SkillS
+    (``method`` other than skills) the scheduler does not learn (0 updates)."""
     steps = config.steps_per_iteration
     out = {"env_steps_per_iteration": steps}
     for name in ("scheduler", "new_skill"):
@@ -312,6 +343,23 @@ def resolve(config: TrainConfig, backend: Optional[str] = None,
             cfg = dataclasses.replace(cfg, **{learner: dataclasses.replace(sub, **changes)})
             notes.append(f"{learner.replace('_', '-')} " + ", ".join(
                 f"{f}={_show(v)} (paper {_show(getattr(default, f))})" for f, v in changes.items()))
+    if cfg.method == "rhpo" and tuple(cfg.scheduler.skill_lengths) != (1,):
+        if given is not None and "scheduler.skill_lengths" in given:
+            raise ValueError(f"method rhpo chooses a component at every step: scheduler.skill_lengths must be [1], "
+                             f"got {list(cfg.scheduler.skill_lengths)}")
+        # RHPO's categorical is the scheduler's policy with one length: it chooses at every step.
+        cfg = dataclasses.replace(cfg, scheduler=dataclasses.replace(cfg.scheduler, skill_lengths=(1,)))
+        notes.append("method rhpo: scheduler skill_lengths=(1,) (its categorical chooses a component every step)")
+    if cfg.method in MIX_METHODS:
+        sub, changes = cfg.new_skill, {}
+        if cfg.method in TEACHER_METHODS and sub.baseline != cfg.method:
+            changes["baseline"] = cfg.method
+        if (given is None and sub.mpo_alpha == 1.0) or (given is not None and "new_skill.mpo_alpha" not in given):
+            changes["mpo_alpha"] = TEACHER_METHOD_ALPHA
+        changes = {f: v for f, v in changes.items() if getattr(sub, f) != v}
+        if changes:
+            cfg = dataclasses.replace(cfg, new_skill=dataclasses.replace(sub, **changes))
+            notes.append(f"method {cfg.method}: new-skill " + ", ".join(f"{f}={_show(v)}" for f, v in changes.items()))
     return cfg, notes
 
 

@@ -16,8 +16,9 @@ New skill (CRR, Wang et al. 2020):
   * TD target: a'_j ~ *target* policy at s' (J = num_action_samples, clipped), *target*
     critic, mean over j.
   * Advantage: *online* critic (stop-gradient), baseline actions a_j ~ *online* policy at s.
-  * Optional MPO mix (mpo_alpha < 1): actions ~ *target* policy at s (π_old), Q from the
-    *online* critic (stop-gradient).
+  * Optional baseline mix (mpo_alpha < 1, paper App. B): actions ~ *target* policy at s
+    (π_old; for kl_reg the skills' mixture π₀), Q from the *online* critic (stop-gradient);
+    kl_reg / dagger read the frozen skills' actions at s (``SkillMixture``).
 Acting uses the *online* policy params (``state.policy_params``) through
 ``make_scheduler_apply`` / ``make_new_skill_apply``.
 
@@ -33,7 +34,7 @@ or, with ``target_tau`` > 0, Polyak averages updated after every step (``optax.i
 
 from __future__ import annotations
 
-from typing import Callable, Dict, NamedTuple, Tuple
+from typing import Callable, Dict, NamedTuple, Optional, Tuple
 
 import flax
 import jax
@@ -41,6 +42,8 @@ import jax.numpy as jnp
 import optax
 
 from parallel_skills.augmentation import augment_batch
+from parallel_skills.baseline_losses import (dagger_cross_entropy, kl_reg_mpo_loss, mixture_log_prob, prior_e_step,
+                                             sample_mixture)
 from parallel_skills.config import NewSkillConfig, SchedulerConfig
 from parallel_skills.crr import crr_advantage, crr_policy_loss, crr_weights, td_target
 from parallel_skills.hcmpo import (critic_target, e_step_weights, m_step_loss, masked_mean, positive,
@@ -61,7 +64,7 @@ def _optimizer(learning_rate: float, clip: float) -> optax.GradientTransformatio
     return optax.chain(optax.clip_by_global_norm(clip), optax.adam(learning_rate))
 
 
-def _learner_step(state, grads, config, update_duals: bool):
+def learner_step(state, grads, config, update_duals: bool):
     """Apply one gradient step to policy, critic (and duals), then the periodic hard target copies.
 
     Shared by both learners (``LearnerState``); ``grads`` = (policy, critic, dual) gradients. Duals are kept ≥ exp-floor via ``_MIN_LOG_DUAL``.
@@ -290,16 +293,16 @@ def scheduler_learner_update(state: LearnerState, batch: Transition, key: jax.Ar
     num_skills = int(state.policy_params["params"]["head_i"]["bias"].shape[0])
     networks = scheduler_networks(num_skills, config)
     lengths = _skill_lengths(config)
-    batch = _as_float32(batch)
+    batch = as_float32(batch)
     labels = scheduler_labels(batch, config)
     targets = scheduler_targets(state, batch, labels, networks, lengths, config)
     grads, aux = jax.grad(
         lambda p: scheduler_loss(p, state.steps, batch, labels, targets, networks, lengths, config),
         has_aux=True)((state.policy_params, state.critic_params, state.dual_params))
-    return _learner_step(state, grads, config, update_duals=True), scheduler_stats(aux, labels)
+    return learner_step(state, grads, config, update_duals=True), scheduler_stats(aux, labels)
 
 
-def _as_float32(batch: Transition) -> Transition:
+def as_float32(batch: Transition) -> Transition:
     """Observations, actions, rewards, discounts and weights as float32; labels as int32."""
     f, i = jnp.float32, jnp.int32
     return batch.replace(obs=batch.obs.astype(f), action=batch.action.astype(f), reward=batch.reward.astype(f),
@@ -347,13 +350,22 @@ def new_skill_learner_init(key: jax.Array, obs_size: int, action_size: int,
     return _learner_init(key, policy, critic, (obs,), (obs, act), dual_params, config)
 
 
+class SkillMixture(NamedTuple):
+    """The frozen skills at a batch's states, as the baselines' prior / teacher π₀ =
+    (1/N)·Σ_i N(μ_i(s), σ₀²) (``baseline_losses``): means [B, N, A] the skills' actions, std σ₀
+    the collection noise std (scalar)."""
+
+    means: jax.Array
+    std: jax.Array
+
+
 class NewSkillTargets(NamedTuple):
     """From the target networks (no gradient)."""
 
     y: jax.Array  # [B] TD target r + γ·d·mean_j min_e Q'_e(s', a'_j), a'_j ~ π_target(.|s')
     mpo_mean: jax.Array  # [B, A] π_old = target policy at s (MPO mix only, else [0])
     mpo_std: jax.Array  # [B, A]
-    mpo_actions: jax.Array  # [B, n_mpo, A] samples of π_old (MPO mix only)
+    mpo_actions: jax.Array  # [B, n_mpo, A] samples of π_old, or of π₀ for kl_reg (MPO mix only)
 
 
 class NewSkillAux(NamedTuple):
@@ -366,7 +378,7 @@ class NewSkillAux(NamedTuple):
     mpo: Dict[str, jax.Array]  # mpo_kl_mean, mpo_kl_std, mpo_temperature (MPO mix only)
 
 
-def _tile_obs(x, n: int):
+def tile_obs(x, n: int):
     return jnp.broadcast_to(x[:, None, :], (x.shape[0], n, x.shape[-1]))
 
 
@@ -376,29 +388,33 @@ def _sample_n(mean, std, n: int, key):
 
 
 def new_skill_targets(state: LearnerState, batch: Transition, networks, key_next, key_mpo,
-                      config: NewSkillConfig) -> NewSkillTargets:
+                      config: NewSkillConfig, teacher: Optional[SkillMixture] = None) -> NewSkillTargets:
     """TD target with the target policy and the target critics (clipped double Q: their minimum);
-    with the MPO mix, samples of π_old = the target policy at s."""
+    with the MPO mix, samples of π_old = the target policy at s (of the skills' mixture π₀ for
+    the kl_reg baseline: the prior is the proposal)."""
     policy, critic = networks
     j = config.num_action_samples
     t_mean_next, t_std_next = policy.apply(state.target_policy_params, batch.next_obs)
     a_next = _sample_n(t_mean_next, t_std_next, j, key_next)
-    q_next = jnp.min(critic_values(critic, state.target_critic_params, _tile_obs(batch.next_obs, j), a_next),
+    q_next = jnp.min(critic_values(critic, state.target_critic_params, tile_obs(batch.next_obs, j), a_next),
                      axis=-1)  # [B, J]
     y = td_target(batch.reward, batch.discount, q_next, config.discount)
     if config.mpo_alpha < 1.0:
         t_mean, t_std = policy.apply(state.target_policy_params, batch.obs)
-        a_mpo = _sample_n(t_mean, t_std, config.mpo_num_samples, key_mpo)
+        if config.baseline == "kl_reg":
+            a_mpo = sample_mixture(teacher.means, teacher.std, key_mpo, config.mpo_num_samples)
+        else:
+            a_mpo = _sample_n(t_mean, t_std, config.mpo_num_samples, key_mpo)
     else:
         t_mean = t_std = a_mpo = jnp.zeros((0,))
     return NewSkillTargets(y=y, mpo_mean=t_mean, mpo_std=t_std, mpo_actions=a_mpo)
 
 
 def new_skill_loss(params, batch: Transition, targets: NewSkillTargets, networks, key_crr,
-                   config: NewSkillConfig) -> Tuple[jax.Array, NewSkillAux]:
+                   config: NewSkillConfig, teacher: Optional[SkillMixture] = None) -> Tuple[jax.Array, NewSkillAux]:
     """Critics: Σ_e 0.5·(Q_e(s, a) − y)² over weighted rows. Policy: CRR −f(A)·log π(a|s),
     A = min_e Q_e(s, a) − mean_j min_e Q_e(s, a_j), a_j ~ π(.|s); with mpo_alpha < 1,
-    α·CRR + (1 − α)·Gaussian MPO. ``params`` = (policy, critic, dual)."""
+    α·CRR + (1 − α)·L_baseline (``baseline_policy_loss``). ``params`` = (policy, critic, dual)."""
     policy_params, critic_params, dual_params = params
     policy, critic = networks
     j = config.num_action_samples
@@ -411,7 +427,7 @@ def new_skill_loss(params, batch: Transition, targets: NewSkillTargets, networks
     # The sampled actions' values only feed the (stop-gradient) advantage and MPO weights: evaluated
     # with stop-gradient parameters, so that the backward pass runs on the stored actions' rows alone.
     sampled = jnp.concatenate([a_j] + ([targets.mpo_actions] if use_mpo else []), axis=1)  # [B, J (+ n_mpo), A]
-    q_sampled = critic_values(critic, jax.lax.stop_gradient(critic_params), _tile_obs(obs, j + n_mpo), sampled)
+    q_sampled = critic_values(critic, jax.lax.stop_gradient(critic_params), tile_obs(obs, j + n_mpo), sampled)
     q_ens = jnp.concatenate([q[:, None], q_sampled], axis=1)  # [B, 1 + J (+ n_mpo), E]
     critic_loss = masked_mean(jnp.sum(0.5 * jnp.square(q - targets.y[:, None]), axis=-1), weight)
     q_all = jnp.min(q_ens, axis=-1)  # advantages from the clipped (minimum) estimate
@@ -421,17 +437,47 @@ def new_skill_loss(params, batch: Transition, targets: NewSkillTargets, networks
     loss_crr = crr_policy_loss(gaussian_log_prob(mean, std, action), w_crr, weight)
     mpo_stats: Dict[str, jax.Array] = {}
     if use_mpo:
-        loss_mpo, mpo_stats = gaussian_mpo_loss(
-            mean, std, targets.mpo_mean, targets.mpo_std, targets.mpo_actions, q_sg[:, 1 + j:],
-            positive(dual_params["log_temperature"]), positive(dual_params["log_alpha_mean"]),
-            positive(dual_params["log_alpha_stddev"]), config.mpo_epsilon,
-            config.mpo_epsilon_mean, config.mpo_epsilon_stddev, weight)
-        policy_loss = config.mpo_alpha * loss_crr + (1.0 - config.mpo_alpha) * loss_mpo
+        loss_baseline, mpo_stats = baseline_policy_loss(mean, std, targets, q_sg[:, 1 + j:], dual_params, weight,
+                                                        config, teacher)
+        policy_loss = config.mpo_alpha * loss_crr + (1.0 - config.mpo_alpha) * loss_baseline
     else:
         policy_loss = loss_crr
     aux = NewSkillAux(critic_loss=critic_loss, q=q_all[:, 0], advantage=advantage, crr_weight=w_crr, std=std,
                       policy_loss=policy_loss, mpo=mpo_stats)
     return critic_loss + policy_loss, aux
+
+
+def baseline_policy_loss(mean, std, targets: NewSkillTargets, q_mpo, dual_params, weight, config: NewSkillConfig,
+                         teacher: Optional[SkillMixture]) -> Tuple[jax.Array, Dict[str, jax.Array]]:
+    """L_baseline of the CRR mix (paper App. B), by ``config.baseline``:
+
+    * "mpo": decoupled Gaussian MPO on samples of π_old (``mpo.gaussian_mpo_loss``);
+    * "kl_reg": MPO regularised to the skills' mixture π₀: E-step q ∝ π₀·exp(Q/η) on samples of
+      π₀ (the prior is the proposal), KL(q ‖ π₀) ≤ mpo_epsilon, M-step weighted maximum
+      likelihood (``baseline_losses.prior_e_step`` / ``kl_reg_mpo_loss``);
+    * "dagger": dagger_alpha·(−E_{a~π₀} log π(a|s)) (``baseline_losses.dagger_cross_entropy``, on
+      the new skill's own states) + (1 − dagger_alpha)·MPO.
+
+    mean, std [B, A] the online policy; q_mpo [B, n_mpo] Q of ``targets.mpo_actions`` (stop-gradient);
+    weight [B]. Returns (loss, stats)."""
+    temperature = positive(dual_params["log_temperature"])
+    if config.baseline == "kl_reg":
+        log_prior = mixture_log_prob(teacher.means, teacher.std, targets.mpo_actions)  # [B, n_mpo]
+        weights, loss_temperature = prior_e_step(q_mpo, log_prior, log_prior, temperature, config.mpo_epsilon, weight)
+        loss, stats = kl_reg_mpo_loss(mean, std, targets.mpo_actions, weights, weight)
+        return loss + loss_temperature, dict(stats, mpo_temperature=temperature)
+    if config.baseline == "dagger" and config.dagger_alpha == 1.0:
+        loss_mpo, stats = jnp.zeros(()), {}
+    else:
+        loss_mpo, stats = gaussian_mpo_loss(
+            mean, std, targets.mpo_mean, targets.mpo_std, targets.mpo_actions, q_mpo, temperature,
+            positive(dual_params["log_alpha_mean"]), positive(dual_params["log_alpha_stddev"]), config.mpo_epsilon,
+            config.mpo_epsilon_mean, config.mpo_epsilon_stddev, weight)
+    if config.baseline != "dagger":
+        return loss_mpo, stats
+    cross_entropy = dagger_cross_entropy(mean, std, teacher.means, teacher.std, weight)
+    loss = config.dagger_alpha * cross_entropy + (1.0 - config.dagger_alpha) * loss_mpo
+    return loss, dict(stats, dagger_cross_entropy=cross_entropy)
 
 
 def new_skill_stats(aux: NewSkillAux, batch: Transition) -> Dict[str, jax.Array]:
@@ -445,22 +491,25 @@ def new_skill_stats(aux: NewSkillAux, batch: Transition) -> Dict[str, jax.Array]
         advantage_mean=masked_mean(aux.advantage, weight),
         policy_loss=aux.policy_loss,
     )
-    for name in ("mpo_kl_mean", "mpo_kl_std", "mpo_temperature"):
+    for name in ("mpo_kl_mean", "mpo_kl_std", "mpo_temperature", "kl_reg_ess", "dagger_cross_entropy"):
         if name in aux.mpo:
             stats[name] = aux.mpo[name]
     return stats
 
 
-def new_skill_learner_update(state: LearnerState, batch: Transition, key: jax.Array,
-                             config: NewSkillConfig) -> Tuple[LearnerState, Dict[str, jax.Array]]:
-    """One CRR update (± Gaussian MPO with weight 1 − mpo_alpha) on ``batch`` [B]
+def new_skill_learner_update(state: LearnerState, batch: Transition, key: jax.Array, config: NewSkillConfig,
+                             teacher: Optional[SkillMixture] = None) -> Tuple[LearnerState, Dict[str, jax.Array]]:
+    """One CRR update (± L_baseline with weight 1 − mpo_alpha) on ``batch`` [B]
     (``replay.Transition``: obs, action, reward, discount, next_obs, weight; rows with weight 0
-    are ignored). Critics (E = num_critics) regress on one target; clipped double Q for E > 1."""
-    batch = _as_float32(batch)
+    are ignored). Critics (E = num_critics) regress on one target; clipped double Q for E > 1.
+    ``teacher``: the skills at the batch's states, needed by the kl_reg and dagger baselines."""
+    if config.mpo_alpha < 1.0 and config.baseline in ("kl_reg", "dagger") and teacher is None:
+        raise ValueError(f"new_skill.baseline {config.baseline!r} needs the skills' actions (teacher)")
+    batch = as_float32(batch)
     networks = new_skill_networks(batch.action.shape[-1], config)
     k_next, k_crr, k_mpo = jax.random.split(key, 3)
-    targets = new_skill_targets(state, batch, networks, k_next, k_mpo, config)
-    grads, aux = jax.grad(lambda p: new_skill_loss(p, batch, targets, networks, k_crr, config),
+    targets = new_skill_targets(state, batch, networks, k_next, k_mpo, config, teacher)
+    grads, aux = jax.grad(lambda p: new_skill_loss(p, batch, targets, networks, k_crr, config, teacher),
                           has_aux=True)((state.policy_params, state.critic_params, state.dual_params))
-    new_state = _learner_step(state, grads, config, update_duals=config.mpo_alpha < 1.0)
+    new_state = learner_step(state, grads, config, update_duals=config.mpo_alpha < 1.0)
     return new_state, new_skill_stats(aux, batch)

@@ -163,14 +163,20 @@ class Replay:
         rows = self._buffer(self.scheduler_batch_size).sample(state, key).experience
         return _normalized(rows.one_step().replace(action=rows.action[:, :0]), normalizer)
 
-    def sample_new_skill(self, state, normalizer, key) -> Transition:
+    def sample_new_skill(self, state, normalizer, key, raw_obs: bool = False):
         """A new-skill batch [batch] with normalised observations; with n_step > 1 its reward,
-        discount, next_obs and weight are the n-step ones."""
+        discount, next_obs and weight are the n-step ones. ``raw_obs``: returns (batch, (obs,
+        next_obs)), the batch's observations before normalisation [batch, O] each, for what reads
+        raw observations (the frozen skills)."""
         rows = self._buffer(self.new_skill_batch_size).sample(state, key).experience
         if self.n_step > 1:
+            raw = (rows.obs, rows.nstep_next_obs)
             rows = rows.replace(nstep_next_obs=obs_norm.normalize(normalizer, rows.nstep_next_obs))
-            return _normalized(rows.as_nstep_target(), normalizer, next_obs=False)
-        return _normalized(rows, normalizer)
+            batch = _normalized(rows.as_nstep_target(), normalizer, next_obs=False)
+        else:
+            raw = (rows.obs, rows.next_obs)
+            batch = _normalized(rows, normalizer)
+        return (batch, raw) if raw_obs else batch
 
 
 def _normalized(batch: Transition, normalizer, next_obs: bool = True) -> Transition:

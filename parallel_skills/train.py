@@ -30,6 +30,7 @@ from parallel_skills.acting import Actor, ActorState, StepStats
 from parallel_skills.config import TrainConfig, resolve, updates_per_iteration
 from parallel_skills.evaluation import rollout_episodes
 from parallel_skills.replay import PendingStep, Replay, Transition
+from parallel_skills.rhpo import rhpo_learner_update
 from parallel_skills.skills import Skill, SkillSet
 
 log = logging.getLogger("parallel_skills")
@@ -72,13 +73,15 @@ class Trainer:
 
 
 def make_actor(environment, skills: Sequence[Skill], config: TrainConfig, num_envs: int) -> Actor:
-    """The acting functions of ``num_envs`` envs (``skills``: the frozen ones; none from scratch)."""
+    """The acting functions of ``num_envs`` envs (``skills``: the frozen ones; none from scratch).
+    SkillS's scheduler chooses (RHPO's categorical, a scheduler with K = {1}, for rhpo); with every
+    other method the new skill always acts."""
     n_total = len(skills) + 1  # frozen skills + the new skill (index N)
     return Actor(env=environment, skill_set=SkillSet(skills),
                  scheduler_apply=learners.make_scheduler_apply(n_total, config.scheduler),
                  new_skill_apply=learners.make_new_skill_apply(int(environment.action_size), config.new_skill),
                  skill_lengths=tuple(config.scheduler.skill_lengths), num_envs=int(num_envs),
-                 skill_noise_std=config.skill_noise_std, scheduler_acts=config.method == "skills")
+                 skill_noise_std=config.skill_noise_std, scheduler_acts=config.method in ("skills", "rhpo"))
 
 
 def make_replay(environment, config: TrainConfig) -> Replay:
@@ -130,7 +133,8 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
     """Build the pure ``init`` / ``iteration`` functions for ``environment`` and frozen ``skills``."""
     if config.num_envs is None or config.replay_size is None:
         raise ValueError("make_trainer needs a resolved config (see parallel_skills.config.resolve)")
-    skills = [] if config.method == "scratch" else list(skills)
+    initial_skill = finetune_source(skills, config) if config.method == "finetune" else None
+    skills = [] if config.method in ("scratch", "finetune") else list(skills)
     n_total = len(skills) + 1  # frozen skills + the new skill (index N)
     sc, nc = config.scheduler, config.new_skill
     obs_size, action_size = int(environment.observation_size), int(environment.action_size)
@@ -141,12 +145,22 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
     actor = make_actor(environment, skills, config, config.num_envs)
     replay = make_replay(environment, config)
 
+    # kl_reg / dagger: the new skill's loss reads the frozen skills' actions at its batch's states;
+    # rhpo at its states and next states (the mixture's components).
+    rhpo = config.method == "rhpo"
+    with_teacher = nc.mpo_alpha < 1.0 and nc.baseline in ("kl_reg", "dagger")
+    if rhpo and not skills:
+        raise ValueError("method rhpo needs at least one frozen skill (its mixture's components)")
+
     def init(key) -> TrainingState:
         k_s, k_n, k_e, k_run = jax.random.split(key, 4)
+        new_skill = learners.new_skill_learner_init(k_n, obs_size, action_size, nc)
+        normalizer = obs_norm.init(obs_size)
+        if initial_skill is not None:
+            new_skill, normalizer = start_from_skill(new_skill, initial_skill)
         return TrainingState(
-            scheduler=learners.scheduler_learner_init(k_s, obs_size, n_total, sc),
-            new_skill=learners.new_skill_learner_init(k_n, obs_size, action_size, nc),
-            replay=replay.init(), actor=actor.reset(k_e), normalizer=obs_norm.init(obs_size), key=k_run,
+            scheduler=learners.scheduler_learner_init(k_s, obs_size, n_total, sc), new_skill=new_skill,
+            replay=replay.init(), actor=actor.reset(k_e), normalizer=normalizer, key=k_run,
             env_steps=jnp.zeros((), jnp.int32), iteration=jnp.zeros((), jnp.int32), pending=replay.init_pending())
 
     def collect_insert(ts: TrainingState, key):
@@ -155,19 +169,51 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
                                                  ts.normalizer, key, config.unroll_length)
         replay_state, pending = replay.insert(ts.replay, ts.pending, traj, stats.done)
         flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731  [T, B, ...] -> [T·B, ...]
-        normalizer = obs_norm.update(ts.normalizer, flat(traj.obs), flat(traj.weight))  # this unroll's steps
+        normalizer = ts.normalizer
+        if initial_skill is None:  # (fine-tuning keeps the skill's own statistics)
+            normalizer = obs_norm.update(normalizer, flat(traj.obs), flat(traj.weight))  # this unroll's steps
         return ts.replace(replay=replay_state, actor=actor_state, normalizer=normalizer, pending=pending), traj, stats
+
+    def sample_new_skill(ts: TrainingState, key):
+        """A new-skill batch, and with a teacher the skills' actions at its states (raw observations)."""
+        if not with_teacher:
+            return replay.sample_new_skill(ts.replay, ts.normalizer, key), None
+        k_rows, k_skills = jax.random.split(key)
+        batch, (raw_obs, _) = replay.sample_new_skill(ts.replay, ts.normalizer, k_rows, raw_obs=True)
+        return batch, skill_mixture(raw_obs, k_skills)
+
+    def new_skill_update(state, batch_teacher, key, cfg):
+        batch, teacher = batch_teacher
+        return learners.new_skill_learner_update(state, batch, key, cfg, teacher)
+
+    def skill_mixture(raw_obs, key):
+        means = jnp.swapaxes(actor.skill_set.frozen_actions(raw_obs, key), 0, 1)  # [B, N, A]
+        return learners.SkillMixture(means=means, std=jnp.asarray(config.skill_noise_std, jnp.float32))
+
+    def sample_rhpo(ts: TrainingState, key):
+        k_rows, k_obs, k_next = jax.random.split(key, 3)
+        batch, (raw_obs, raw_next) = replay.sample_new_skill(ts.replay, ts.normalizer, k_rows, raw_obs=True)
+        return batch, skill_mixture(raw_obs, k_obs), skill_mixture(raw_next, k_next)
+
+    def rhpo_update(states, batch_skills, key, cfg):
+        batch, skills_now, skills_next = batch_skills
+        cat_state, comp_state, stats = rhpo_learner_update(*states, batch, skills_now, skills_next, key, sc, cfg)
+        return (cat_state, comp_state), stats
 
     def learn(ts: TrainingState, key):
         """Learning half: both learners' updates on batches sampled from the replay."""
         k_s, k_n = jax.random.split(key)
         size = replay.size(ts.replay)
+        if rhpo:  # one update trains the categorical (the scheduler's policy) and the component
+            (sched_state, new_state), new_m = run_learner(
+                rhpo_update, lambda k: sample_rhpo(ts, k), nc, (ts.scheduler, ts.new_skill), k_n, n_new,
+                size >= nc.min_replay_size)
+            return sched_state, new_state, {}, new_m
         sched_state, sched_m = run_learner(
             learners.scheduler_learner_update, lambda k: replay.sample_scheduler(ts.replay, ts.normalizer, k),
             sc, ts.scheduler, k_s, n_sched, learn_scheduler & (size >= sc.min_replay_size))
-        new_state, new_m = run_learner(
-            learners.new_skill_learner_update, lambda k: replay.sample_new_skill(ts.replay, ts.normalizer, k),
-            nc, ts.new_skill, k_n, n_new, size >= nc.min_replay_size)
+        new_state, new_m = run_learner(new_skill_update, lambda k: sample_new_skill(ts, k), nc, ts.new_skill, k_n,
+                                       n_new, size >= nc.min_replay_size)
         return sched_state, new_state, sched_m, new_m
 
     def iteration(ts: TrainingState):
@@ -185,6 +231,35 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
                    replay=replay, config=config, skills=tuple(skills), num_skills_total=n_total,
                    scheduler_updates=n_sched if learn_scheduler else 0, new_skill_updates=n_new,
                    steps_per_iteration=steps_per_iter)
+
+
+def finetune_source(skills: Sequence[Skill], config: TrainConfig) -> Skill:
+    """The one skill ``method="finetune"`` starts the new skill from: a Gaussian-MLP skill (as
+    ``Skill.load`` gives) with the new skill's network sizes. ValueError (one line) otherwise."""
+    skills = list(skills)
+    if len(skills) != 1:
+        raise ValueError(f"method finetune starts from exactly one skill, got {len(skills)}")
+    s = skills[0]
+    hidden = s.metadata.get("hidden")
+    if s.params is None or hidden is None or "policy" not in s.params:
+        raise ValueError(f"method finetune needs a network skill (e.g. from the library), {s.name!r} has no "
+                         "network parameters (scripted skills are code)")
+    if tuple(int(h) for h in hidden) != tuple(config.new_skill.hidden):
+        raise ValueError(f"skill {s.name!r} has hidden sizes {tuple(hidden)}, the new skill "
+                         f"{tuple(config.new_skill.hidden)}: set new_skill.hidden to fine-tune it")
+    return s
+
+
+def start_from_skill(new_skill: learners.LearnerState, skill: Skill):
+    """The new skill's learner state with ``skill``'s policy as online and target policy, and the
+    skill's observation statistics as the normaliser (the critic starts fresh). Returns
+    (learner state, normaliser)."""
+    policy = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), skill.params["policy"])
+    mean = jnp.asarray(skill.params["obs_mean"], jnp.float32)
+    std = jnp.asarray(skill.params["obs_std"], jnp.float32)
+    # count 1 and m2 = std²: normalize() reproduces (obs − mean) / std exactly (std ≥ STD_FLOOR).
+    normalizer = obs_norm.RunningStats(count=jnp.ones(()), mean=mean, m2=jnp.square(std))
+    return new_skill.replace(policy_params=policy, target_policy_params=policy), normalizer
 
 
 def make_policy_factory(action_size: int, config: TrainConfig, num_skills_total: int):
@@ -381,7 +456,7 @@ def make_evaluation(env, trainer: Trainer, episode_length: int, seed: int) -> Ca
         ev = eval_new(state.new_skill.policy_params, state.normalizer, k1)
         out = {"eval/new_skill_success": float(jnp.mean(ev["success"])),
                "eval/new_skill_return": float(jnp.mean(ev["return"]))}
-        if trainer.config.method == "skills":
+        if trainer.config.method in ("skills", "rhpo"):  # the scheduler acting (rhpo: the whole mixture)
             ev = eval_sched(state.scheduler.policy_params, state.new_skill.policy_params, state.normalizer, k2)
             out["eval/scheduler_success"] = float(jnp.mean(ev["success"]))
             out["eval/scheduler_return"] = float(jnp.mean(ev["return"]))

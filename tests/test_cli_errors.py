@@ -88,6 +88,9 @@ UNKNOWN_NAMES = [
     (["--method", "magic"], "--method", "scratch"),
     (["--recipe", "fast"], "--recipe", "parallel"),
     (["--task", "reach_green"], "no skill table for task 'reach_green'", "lift"),  # a dense task has no skill set
+    (["--finetune_from", "reach_green"], "--finetune_from is for --method finetune", "not skills"),
+    (["--method", "finetune", "--skill_source", "scripted"], "starts from a network skill", "--skill_source library"),
+    (["--method", "finetune", "--finetune_from", "fly"], "fly", "checkpoints"),
 ]
 
 
@@ -114,7 +117,9 @@ BAD_CONFIGS = [
     ("lengths", {"scheduler": {"skill_lengths": [3, 2]}}, "skill_lengths must be positive, unique and ascending"),
     ("lengths_type", {"scheduler": {"skill_lengths": 3}}, "skill_lengths must be a non-empty list"),
     ("crr_mode", {"new_skill": {"crr_mode": "bogus"}}, "crr_mode must be 'exp' or 'indicator'"),
-    ("method", {"method": "magic"}, "method must be 'skills' or 'scratch'"),
+    ("method", {"method": "magic"}, "method must be one of skills, scratch, finetune, kl_reg, dagger, rhpo"),
+    ("baseline", {"new_skill": {"baseline": "bc"}}, "baseline must be one of mpo, kl_reg, dagger"),
+    ("rhpo_lengths", {"method": "rhpo", "scheduler": {"skill_lengths": [2, 3]}}, "skill_lengths must be [1]"),
     ("recipe", {"recipe": "fast"}, "recipe must be one of cpu, parallel, paper or null"),
 ]
 

@@ -28,7 +28,8 @@ from training.cli import Parser, UsageError, main_guard
 from training.logging_utils import read_metrics, skill_labels
 
 GROUP_KEYS = ("task", "physics", "method", "skill_set")
-METHOD_LABELS = {"skills": "SkillS", "scratch": "from scratch"}
+METHOD_LABELS = {"skills": "SkillS", "scratch": "from scratch", "finetune": "fine-tuning", "kl_reg": "KL-reg. to mixture",
+                 "dagger": "DAGGER", "rhpo": "RHPO"}
 
 
 class Run:

@@ -79,7 +79,13 @@ def build_parser():
     p.add_argument("--skill_dir", default=None,
                    help="directory of your own skills (NAME.npz + NAME.json, as Skill.save writes them): a skill of "
                         "the set found there is loaded from it instead of --skill_source")
-    p.add_argument("--method", default=None, choices=list(METHODS), help="default skills")
+    p.add_argument("--method", default=None, choices=list(METHODS),
+                   help="skills (SkillS, default); the new skill alone: scratch, finetune (from --finetune_from), "
+                        "kl_reg / dagger (the skill set as its prior / teacher); rhpo (a mixture of the skills and "
+                        "the new skill); README \"Baselines\"")
+    p.add_argument("--finetune_from", default=None,
+                   help="--method finetune: the network skill the new skill starts from (library name, or one in "
+                        "--skill_dir); default the task's last useful skill, from the library")
     p.add_argument("--eval_every", type=positive_int, default=None,
                    help="iterations between evaluations (default: 20 evaluations per run)")
     p.add_argument("--eval_episodes", type=positive_int, default=None, help="default 32")
@@ -180,7 +186,19 @@ def prepare_new(args, argv):
     method = cfg.method
     if method not in METHODS:  # (TrainConfig validates it too)
         raise UsageError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
-    names = [] if method == "scratch" else skill_library.skill_names(a["task"], a["skills"])
+    if args.finetune_from is not None and method != "finetune":
+        raise UsageError(f"--finetune_from is for --method finetune, not {method}")
+    if method == "scratch":
+        names = []
+    elif method == "finetune":
+        if args.skill_source == "scripted" and not args.skill_dir:
+            raise UsageError("--method finetune starts from a network skill: use --skill_source library (the "
+                             "default for finetune) or --skill_dir, not scripted controllers")
+        if args.skill_source is None:
+            a["skill_source"] = "library"
+        names = [args.finetune_from or skill_library.skill_names(a["task"], "useful")[-1]]
+    else:
+        names = skill_library.skill_names(a["task"], a["skills"])
 
     out = args.out or os.path.join("runs", f"{a['task']}-{method}-s{a['seed']}-{time.strftime('%Y%m%d-%H%M%S')}")
     if os.path.exists(out):
@@ -192,7 +210,10 @@ def prepare_new(args, argv):
 
     on_cpu = jax.default_backend() == "cpu"
     num_timesteps = args.num_timesteps or DEFAULT_TIMESTEPS["cpu" if on_cpu else "accelerator"]
-    resolved, notes = resolve(cfg, given=dotted_names(file_data))  # (the recipe fills what the file leaves)
+    try:
+        resolved, notes = resolve(cfg, given=dotted_names(file_data))  # (the recipe fills what the file leaves)
+    except ValueError as e:  # a field the file sets conflicts with the method
+        raise UsageError(f"config file {args.config}: {e}" if args.config else str(e)) from None
     if args.eval_every is not None:
         eval_every = args.eval_every
     elif "eval_every" in file_data:
@@ -203,8 +224,12 @@ def prepare_new(args, argv):
     overrides = {} if args.episode_length is None else {"episode_length": args.episode_length}
     env = tasks.make(a["task"], physics=a["physics"], **overrides)  # validates the overrides
     skill_dir = os.path.abspath(args.skill_dir) if args.skill_dir else None
-    skill_library.load_skills(names, a["physics"], a["skill_source"], env.observation_size, env.action_size,
-                           skill_dir=skill_dir)  # exist, fit (a ValueError is one error line: main_guard)
+    loaded = skill_library.load_skills(names, a["physics"], a["skill_source"], env.observation_size,
+                                       env.action_size, skill_dir=skill_dir)  # exist, fit (ValueError: one line)
+    if method == "finetune":
+        from parallel_skills.train import finetune_source
+
+        finetune_source(loaded, resolved)  # a network of the new skill's sizes
 
     run = RunRecord(
         command=_command(argv), task=a["task"], physics=a["physics"], skill_set=a["skills"],
@@ -239,6 +264,8 @@ def prepare_resume(args):
              "skill_dir": (os.path.abspath(args.skill_dir) if args.skill_dir else None, run.skill_dir),
              "seed": (args.seed, run.seed),
              "method": (args.method, resolved.method), "recipe": (args.recipe, resolved.recipe),
+             "finetune_from": (args.finetune_from, run.skills[0] if resolved.method == "finetune" and run.skills
+                               else None),
              "num_envs": (args.num_envs, resolved.num_envs), "episode_length": (args.episode_length, run.episode_length),
              "eval_every": (args.eval_every, resolved.eval_every),
              "eval_episodes": (args.eval_episodes, resolved.eval_episodes),

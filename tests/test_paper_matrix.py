@@ -1,0 +1,86 @@
+"""training.experiments.paper: variants, run states, the plan and the results table (no training here:
+each run is a training.run, tested on its own)."""
+
+import csv
+import json
+import os
+
+import pytest
+
+from training.experiments import paper
+from training.experiments.paper import ABLATIONS, Variant, parse_variant, run_status, success_at, train_command
+
+METHODS = ("skills", "scratch", "kl_reg")
+
+
+def test_variants():
+    assert parse_variant("skills", METHODS) == Variant("skills", "skills", {})
+    v = parse_variant("kl_reg[new_skill.mpo_epsilon=1,new_skill.mpo_alpha=0]", METHODS)
+    assert v.method == "kl_reg" and v.name == "kl_reg-mpo_epsilon=1-mpo_alpha=0"
+    assert v.config == {"new_skill": {"mpo_epsilon": 1, "mpo_alpha": 0}}
+    k1 = parse_variant("k1", METHODS)
+    assert k1.method == "skills" and k1.config == ABLATIONS["k1"][1]
+    with pytest.raises(Exception, match="unknown method or ablation"):
+        parse_variant("bc", METHODS)
+    with pytest.raises(Exception, match="bad setting"):
+        parse_variant("kl_reg[epsilon]", METHODS)
+
+
+def _metrics(d, rows, export_budget=None):
+    os.makedirs(d, exist_ok=True)
+    with open(os.path.join(d, "metrics.csv"), "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skill_return"])
+        w.writerows(rows)
+    if export_budget is not None:
+        with open(os.path.join(d, "export.json"), "w") as f:
+            json.dump({"env_steps": export_budget, "metadata": {"num_timesteps": export_budget}}, f)
+
+
+def test_run_status_and_commands(tmp_path):
+    d = str(tmp_path / "lift" / "skills" / "s0")
+    assert run_status(d, 1000) == "new"
+    _metrics(d, [(500, 10.0, 0.1, 1.0)])
+    assert run_status(d, 1000) == "restart"  # no checkpoint yet
+    os.makedirs(os.path.join(d, "checkpoints", "12"))
+    assert run_status(d, 1000) == "resume"
+    cmd = train_command("lift", Variant("skills", "skills", {}), 0, 1000, d, "resume", None)
+    assert cmd[-5:] == ["--resume", "--out", d, "--num_timesteps", "1000"]
+    _metrics(d, [(1000, 20.0, 0.5, 1.0)], export_budget=1000)
+    assert run_status(d, 1000) == "done" and run_status(d, 2000) == "resume"  # extended to a larger budget
+    cmd = train_command("stack", Variant("kl_reg-x", "kl_reg", {"a": 1}), 2, 5000, d, "new", "/c.json")
+    assert cmd[2:] == ["training.run", "--task", "stack", "--method", "kl_reg", "--seed", "2", "--num_timesteps",
+                       "5000", "--out", d, "--config", "/c.json"]
+
+
+def test_success_at_budget_fractions_and_results(tmp_path):
+    rows = [{"env_steps": s, "eval/new_skill_success": v} for s, v in ((100.0, 0.1), (200.0, 0.5), (300.0, 0.9))]
+    assert success_at(rows, 250) == 0.5 and success_at(rows, 50) is None
+    out = str(tmp_path)
+    for seed, final in ((0, 0.9), (1, 0.7)):
+        _metrics(os.path.join(out, "lift", "skills", f"s{seed}"),
+                 [(100, 5.0, 0.1, 1.0), (200, 10.0, 0.3, 2.0), (400, 20.0, final, 3.0)])
+    variants = [Variant("skills", "skills", {}), Variant("scratch", "scratch", {})]
+    paths = paper.write_results(out, ["lift"], variants, [0, 1], {"lift": 400})
+    table = open(os.path.join(out, "results.md")).read()
+    assert "| skills | 0.10 ± 0.00 | 0.30 ± 0.00 | 0.80 ± 0.10 | 2 |" in table
+    assert "| scratch | – | – | – | 0 | – |" in table
+    assert any(p.endswith("lift_new_skill.png") for p in paths)
+
+
+def test_dry_run_prints_the_plan(tmp_path, capsys):
+    _metrics(str(tmp_path / "lift" / "scratch" / "s0"), [(300000, 100.0, 0.0, 0.0)], export_budget=300000)
+    paper.main(["--tasks", "lift", "--methods", "skills,scratch", "--seeds", "0", "--out", str(tmp_path),
+                "--dry_run"])
+    out = capsys.readouterr().out
+    assert "skills" in out and "s0: new" in out and "s0: done" in out
+
+
+def test_bad_arguments(tmp_path, capsys):
+    for argv, msg in ((["--tasks", "lifft"], "unknown task"), (["--seeds", "a"], "--seeds must be integers"),
+                      (["--budgets", "lift=x"], "bad --budgets item"), (["--methods", "skills,skills"], "listed twice"),
+                      (["--jobs", "0"], "--jobs must be")):
+        with pytest.raises(SystemExit) as e:
+            paper.main(argv + ["--out", str(tmp_path / "m")])
+        assert e.value.code == 2 and msg in capsys.readouterr().err
+    assert not os.path.exists(tmp_path / "m")  # nothing written on bad input

@@ -1,0 +1,284 @@
+"""The paper's experiment matrix in one command (its Fig. 3-style comparisons): every (task, variant,
+seed) trained by ``training.run`` in its own run directory — finished runs skipped, cut runs
+resumed — then learning-curve plots and a table of success at fixed budgets.
+
+    python -m training.experiments.paper --tasks lift,stack \\
+        --methods skills,scratch,finetune,rhpo,kl_reg,dagger --seeds 0,1,2 --out runs/paper --jobs 2
+
+A variant is a method (``training.run --method``), or a method with config settings in brackets,
+e.g. ``kl_reg[new_skill.mpo_epsilon=1,new_skill.mpo_alpha=0]`` (a baseline's sweep setting), or a
+named ablation of SkillS (``ABLATIONS``: k1, fixed100, no_augmentation, new_skill_mpo).
+
+Layout: ``OUT/<task>/<variant>/s<seed>/`` (a ``training.run`` directory, its log next to it as
+``s<seed>.log``), ``OUT/<task>_new_skill.png`` (new skill alone, mean ± 1 std over seeds per
+variant), ``OUT/results.md`` (success at fixed fractions of the budget, wall time per run and in
+total). ``--budgets task=N,...`` sets env steps per task (``BUDGETS`` otherwise). ``--jobs J``
+runs J trainings at once, each pinned to its own CPU core. ``--dry_run`` prints the plan only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+from typing import Optional
+
+from training.cli import Parser, UsageError, main_guard
+
+# Env steps per task on a CPU with the cpu recipe (README "Results" states them).
+BUDGETS = {"lift": 300_000, "stack": 1_200_000, "pyramid": 2_000_000, "triple_stack": 3_000_000}
+# Named SkillS ablations (paper App. C / PAPER_EXPERIMENTS): (method, config).
+ABLATIONS = {
+    "k1": ("skills", {"scheduler": {"skill_lengths": [1]}}),  # a new choice at every step
+    "fixed100": ("skills", {"scheduler": {"skill_lengths": [100]}}),  # one fixed skill length
+    "no_augmentation": ("skills", {"scheduler": {"augmentation": False}}),
+    "new_skill_mpo": ("skills", {"new_skill": {"mpo_alpha": 0.0}}),  # MPO instead of CRR for the new skill
+}
+FRACTIONS = (0.25, 0.5, 1.0)  # of the budget, for the table
+_VARIANT = re.compile(r"^(?P<name>[a-z0-9_]+)(\[(?P<settings>[^\]]*)\])?$")
+
+
+@dataclasses.dataclass(frozen=True)
+class Variant:
+    name: str  # directory name
+    method: str
+    config: dict  # nested TrainConfig fields ({} for the defaults)
+
+
+def parse_variant(text: str, methods) -> Variant:
+    """``NAME`` or ``NAME[a.b=v,...]`` (NAME a method or an ablation); UsageError otherwise."""
+    m = _VARIANT.match(text.strip())
+    if not m:
+        raise UsageError(f"bad variant {text!r}: use METHOD or METHOD[section.field=value,...]")
+    name = m.group("name")
+    if name in ABLATIONS:
+        method, config = ABLATIONS[name]
+    elif name in methods:
+        method, config = name, {}
+    else:
+        raise UsageError(f"unknown method or ablation {name!r}; valid: {', '.join(list(methods) + list(ABLATIONS))}")
+    config = json.loads(json.dumps(config))
+    parts = []
+    for item in filter(None, (m.group("settings") or "").split(",")):
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise UsageError(f"bad setting {item!r} in {text!r}: use section.field=value")
+        try:
+            parsed = json.loads(value)
+        except ValueError:
+            parsed = value
+        node = config
+        *path, last = key.split(".")
+        for p in path:
+            node = node.setdefault(p, {})
+        node[last] = parsed
+        parts.append(f"{key.rsplit('.', 1)[-1]}={value}")
+    return Variant(name="-".join([name] + parts), method=method, config=config)
+
+
+def run_status(run_dir: str, budget: int) -> str:
+    """"done" (finished at ≥ budget), "resume" (a checkpoint to continue from), "restart" (started,
+    but cut before its first checkpoint) or "new"."""
+    from training import rundir
+
+    if not os.path.isdir(run_dir):
+        return "new"
+    try:
+        exported = rundir.exported_budget(run_dir)
+    except UsageError:
+        exported = None
+    if exported is not None and exported >= budget:
+        return "done"
+    ckpt = os.path.join(run_dir, "checkpoints")
+    if os.path.isdir(ckpt) and any(d.isdigit() for d in os.listdir(ckpt)):
+        return "resume"
+    return "restart"
+
+
+def train_command(task: str, variant: Variant, seed: int, budget: int, run_dir: str, status: str,
+                  config_path: Optional[str]) -> list:
+    cmd = [sys.executable, "-m", "training.run"]
+    if status == "resume":
+        return cmd + ["--resume", "--out", run_dir, "--num_timesteps", str(budget)]
+    cmd += ["--task", task, "--method", variant.method, "--seed", str(seed), "--num_timesteps", str(budget),
+            "--out", run_dir]
+    return cmd + (["--config", config_path] if config_path else [])
+
+
+def _pin(core: Optional[int]):
+    if core is None or not hasattr(os, "sched_setaffinity"):
+        return None
+    return lambda: os.sched_setaffinity(0, {core})
+
+
+def run_jobs(jobs: list, parallel: int) -> list:
+    """Run (command, log path) jobs, ``parallel`` at a time, each pinned to its own core when
+    parallel > 1. Returns the exit codes in job order."""
+    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else list(range(parallel))
+    pending, running, codes = list(enumerate(jobs)), {}, [None] * len(jobs)
+    while pending or running:
+        while pending and len(running) < parallel:
+            idx, (cmd, log) = pending.pop(0)
+            free = [c for c in cores if c not in {core for _, core in running.values()}]
+            core = free[0] if parallel > 1 and free else None
+            with open(log, "ab") as f:
+                f.write(f"$ {' '.join(cmd)}\n".encode())
+                f.flush()
+                proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, preexec_fn=_pin(core))
+            running[idx] = (proc, core)
+            print(f"started {' '.join(cmd[2:])}" + (f" (core {core})" if core is not None else ""), flush=True)
+        time.sleep(1.0)
+        for idx, (proc, _) in list(running.items()):
+            if proc.poll() is not None:
+                codes[idx] = proc.returncode
+                del running[idx]
+                print(f"{'finished' if proc.returncode == 0 else f'FAILED (exit {proc.returncode})'}: "
+                      f"{jobs[idx][1]}", flush=True)
+    return codes
+
+
+def success_at(rows: list, steps: float, key: str = "eval/new_skill_success") -> Optional[float]:
+    """The last evaluation at or before ``steps`` env steps (None if none)."""
+    before = [r for r in rows if isinstance(r.get(key), float) and r["env_steps"] <= steps]
+    return before[-1][key] if before else None
+
+
+def write_results(out: str, tasks: list, variants: list, seeds: list, budgets: dict) -> list:
+    """OUT/<task>_new_skill.png per task and OUT/results.md; returns the files written."""
+    import numpy as np
+
+    from training.logging_utils import read_metrics
+    from training.plot import Run, plot_curves
+
+    lines = ["# Experiment matrix: the new skill alone (success over the evaluation episodes)", "",
+             f"Seeds {', '.join(map(str, seeds))}; mean ± std over the seeds that reached the budget fraction.", ""]
+    written, total_seconds = [], 0.0
+    for task in tasks:
+        budget = budgets[task]
+        header = [f"{int(f * budget):,}" for f in FRACTIONS]
+        lines += [f"## {task} (budget {budget:,} env steps)", "",
+                  "| variant | " + " | ".join(header) + " | seeds | wall time per run (min) |",
+                  "| --- | " + " | ".join("---" for _ in header) + " | --- | --- |"]
+        groups = []
+        for v in variants:
+            dirs = [os.path.join(out, task, v.name, f"s{s}") for s in seeds]
+            dirs = [d for d in dirs if os.path.isfile(os.path.join(d, "metrics.csv"))]
+            rows = [[r for r in read_metrics(os.path.join(d, "metrics.csv")) if isinstance(r.get("env_steps"), float)]
+                    for d in dirs]
+            rows = [r for r in rows if r]
+            if not rows:
+                lines.append(f"| {v.name} | " + " | ".join("–" for _ in header) + " | 0 | – |")
+                continue
+            cells = []
+            for f in FRACTIONS:
+                vals = [success_at(r, f * budget) for r in rows if r[-1]["env_steps"] >= f * budget]
+                vals = [x for x in vals if x is not None]
+                cells.append(f"{np.mean(vals):.2f} ± {np.std(vals):.2f}" if vals else "–")
+            walls = [r[-1]["wall_time"] / 60 for r in rows if isinstance(r[-1].get("wall_time"), float)]
+            total_seconds += 60 * sum(walls)
+            wall = f"{np.mean(walls):.1f}" if walls else "–"
+            lines.append(f"| {v.name} | " + " | ".join(cells) + f" | {len(rows)} | {wall} |")
+            groups.append((f"{v.name}, {len(rows)} seeds" if len(rows) > 1 else v.name,
+                           [Run(d) for d, r in zip(dirs, rows)]))
+        lines.append("")
+        if groups:
+            written.append(plot_curves(groups, os.path.join(out, f"{task}_new_skill.png")))
+    lines.append(f"Total training wall time of the runs above: {total_seconds / 3600:.2f} h (summed over runs; "
+                 "runs in parallel overlap).")
+    path = os.path.join(out, "results.md")
+    with open(path, "w") as f:
+        f.write("\n".join(lines) + "\n")
+    return written + [path]
+
+
+def main(argv=None):
+    from parallel_skills.config import TrainConfig
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    p = Parser(prog="python -m training.experiments.paper", description=__doc__.splitlines()[0])
+    p.add_argument("--tasks", default="lift")
+    p.add_argument("--methods", default="skills,scratch,finetune,rhpo,kl_reg,dagger",
+                   help="variants: methods, ablations, METHOD[section.field=value,...] (semicolon-separated if "
+                        "settings contain commas)")
+    p.add_argument("--seeds", default="0,1,2")
+    p.add_argument("--budgets", default=None, help="task=env_steps,... (default: BUDGETS)")
+    p.add_argument("--out", required=True)
+    p.add_argument("--jobs", type=int, default=1, help="trainings at once, one core each")
+    p.add_argument("--dry_run", action="store_true")
+    args = p.parse_args(argv)
+
+    def plan():
+        import tasks as task_registry
+
+        task_list = [t.strip() for t in args.tasks.split(",") if t.strip()]
+        for t in task_list:
+            if t not in task_registry.names():
+                raise UsageError(f"unknown task {t!r}; valid: {', '.join(task_registry.names())}")
+        sep = ";" if ";" in args.methods else ","
+        if sep == "," and "[" in args.methods:
+            items = re.findall(r"[a-z0-9_]+(?:\[[^\]]*\])?", args.methods)
+        else:
+            items = [x for x in args.methods.split(sep) if x.strip()]
+        variants = [parse_variant(x, TrainConfig.METHODS) for x in items]
+        if len({v.name for v in variants}) != len(variants):
+            raise UsageError("a variant is listed twice")
+        try:
+            seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
+        except ValueError:
+            raise UsageError(f"--seeds must be integers separated by commas, got {args.seeds!r}") from None
+        if not seeds or min(seeds) < 0:
+            raise UsageError(f"--seeds needs non-negative integers, got {args.seeds!r}")
+        budgets = dict(BUDGETS)
+        for item in filter(None, (args.budgets or "").split(",")):
+            task, sep, value = item.partition("=")
+            if not sep or not value.isdigit() or int(value) < 1:
+                raise UsageError(f"bad --budgets item {item!r}: use task=env_steps (a positive integer)")
+            budgets[task] = int(value)
+        missing = [t for t in task_list if t not in budgets]
+        if missing:
+            raise UsageError(f"no budget for {', '.join(missing)}: give --budgets {missing[0]}=N")
+        if args.jobs < 1:
+            raise UsageError(f"--jobs must be a positive integer, got {args.jobs}")
+        return task_list, variants, seeds, budgets
+
+    task_list, variants, seeds, budgets = main_guard(plan)
+    jobs = []
+    for task in task_list:
+        for v in variants:
+            config_path = None
+            if v.config and not args.dry_run:
+                os.makedirs(os.path.join(args.out, "configs"), exist_ok=True)
+                config_path = os.path.abspath(os.path.join(args.out, "configs", f"{v.name}.json"))
+                with open(config_path, "w") as f:
+                    json.dump(v.config, f, indent=2, sort_keys=True)
+            for seed in seeds:
+                run_dir = os.path.join(args.out, task, v.name, f"s{seed}")
+                status = run_status(run_dir, budgets[task])
+                print(f"{task:<13} {v.name:<40} s{seed}: {status}")
+                if status == "done" or args.dry_run:
+                    continue
+                if status == "restart":  # cut before any checkpoint: keep it aside, start again
+                    aside = f"{run_dir}.cut-{time.strftime('%Y%m%d-%H%M%S')}"
+                    shutil.move(run_dir, aside)
+                    print(f"  (moved to {aside}: no checkpoint to resume from)")
+                os.makedirs(os.path.dirname(run_dir), exist_ok=True)
+                jobs.append((train_command(task, v, seed, budgets[task], run_dir, status, config_path),
+                             f"{run_dir}.log"))
+    if args.dry_run:
+        return
+    codes = run_jobs(jobs, args.jobs)
+    failed = [log for (_, log), c in zip(jobs, codes) if c != 0]
+    for path in write_results(args.out, task_list, variants, seeds, budgets):
+        print(f"written: {path}")
+    if failed:
+        print(f"{len(failed)} run(s) failed; their logs: {', '.join(failed)}", file=sys.stderr)
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    main()
