@@ -497,10 +497,15 @@ def _write_outputs(out, run, resolved, env, skills, make_policy, params, metrics
     _write_plots(out)
     if video:
         _write_video(out, env, make_policy, params, seed, int(run.episode_length or 0) or None)
-    meta = {"skills": names, "skill_sources": skill_sources(skills, run.physics), "seed": seed,
+    # The export's scheduler chooses among the frozen skills: none for finetune, whose one skill is
+    # where the new skill started (recorded as finetuned_from).
+    frozen = [] if resolved.method == "finetune" else list(skills)
+    meta = {"skills": [s.name for s in frozen], "skill_sources": skill_sources(frozen, run.physics), "seed": seed,
             "env_steps": metrics["env_steps"], "command": run.command,
             "skill_set": run.skill_set, "num_timesteps": num_timesteps,
             "success": metrics["eval/new_skill_success"], "return": metrics["eval/new_skill_return"]}
+    if resolved.method == "finetune":
+        meta["finetuned_from"] = names
     if run.extensions:
         meta["extensions"] = run.extensions
     for k in ("eval/scheduler_success", "eval/scheduler_return"):
