@@ -406,41 +406,129 @@ def train(
     config = _checked_config(environment, skills, config, num_timesteps, num_envs, checkpoint_every, auto_config)
     episode_length = int(episode_length or getattr(environment, "episode_length", 1000))
     trainer = make_trainer(environment, skills, config)
-    evaluate = make_evaluation(eval_env or environment, trainer, episode_length, seed)
     iteration = jax.jit(trainer.iteration, donate_argnums=0)
     state = jax.jit(trainer.init)(jax.random.PRNGKey(seed)) if initial_state is None else initial_state
-    start = int(state.iteration)
+    state, (metrics,) = _host_loop(
+        trainer, iteration, state, None, [make_evaluation(eval_env or environment, trainer, episode_length, seed)],
+        num_timesteps, [host_state], [progress_fn], [checkpoint_fn], checkpoint_every, checkpoint_min_seconds,
+        step_fn)
+    params = {"new_skill": state.new_skill.policy_params, "scheduler": state.scheduler.policy_params,
+              "normalizer": state.normalizer}
+    make_policy = make_policy_factory(int(environment.action_size), config, trainer.num_skills_total)
+    return make_policy, params, metrics
+
+
+def train_seeds(
+    environment,
+    skills: Sequence[Skill],
+    *,
+    seeds: Sequence[int],
+    num_timesteps: int,
+    num_envs: Optional[int] = None,
+    episode_length: Optional[int] = None,
+    config: TrainConfig = TrainConfig(),
+    eval_env=None,
+    progress_fns: Optional[Sequence[Optional[Callable[[int, dict], None]]]] = None,
+    initial_states: Optional[Sequence[TrainingState]] = None,
+    host_states: Optional[Sequence[Optional[dict]]] = None,
+    checkpoint_fns: Optional[Sequence[Optional[Callable[[TrainingState, dict], None]]]] = None,
+    checkpoint_every: Optional[int] = None,
+    checkpoint_min_seconds: float = 0.0,
+    step_fn: Optional[Callable[[int], None]] = None,
+    auto_config: bool = True,
+):
+    """``train`` for several seeds at once: one compiled iteration ``vmap``-ed over the seed axis
+    (S = len(seeds) runs in lockstep: on an accelerator S times the envs for about the cost of one
+    run). Everything per seed is what ``train(..., seed=seeds[i])`` takes and gives: the i-th
+    progress function, checkpoint function (called with the i-th seed's state, unbatched), initial
+    state and host state, and the i-th element of the returned lists. Evaluations run per seed with
+    ``train``'s keys, so seed s evaluates the same episodes as a single run of s; the learning
+    itself matches a single run up to float reordering in the batched matrix products
+    (tests/test_train.py states the tolerance).
+
+    Returns ``(make_policy, [params per seed], [metrics per seed])``.
+    """
+    seeds = [int(s) for s in seeds]
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise ValueError(f"seeds must be distinct integers, got {seeds}")
+    n = len(seeds)
+    per_seed = lambda xs: list(xs) if xs is not None else [None] * n  # noqa: E731
+    progress_fns, host_states, checkpoint_fns = per_seed(progress_fns), per_seed(host_states), per_seed(checkpoint_fns)
+    if any(len(x) != n for x in (progress_fns, host_states, checkpoint_fns)):
+        raise ValueError(f"progress_fns, host_states and checkpoint_fns need one entry per seed ({n})")
+    config = _checked_config(environment, skills, config, num_timesteps, num_envs, checkpoint_every, auto_config)
+    episode_length = int(episode_length or getattr(environment, "episode_length", 1000))
+    trainer = make_trainer(environment, skills, config)
+    iteration = jax.jit(jax.vmap(trainer.iteration), donate_argnums=0)
+    if initial_states is None:
+        state = jax.jit(jax.vmap(trainer.init))(jnp.stack([jax.random.PRNGKey(s) for s in seeds]))
+    else:
+        if len(initial_states) != n:
+            raise ValueError(f"initial_states needs one state per seed ({n}), got {len(initial_states)}")
+        if len({int(s.iteration) for s in initial_states}) != 1:
+            raise ValueError("initial_states must all be at the same iteration (checkpoints of one vmapped run)")
+        state = jax.tree.map(lambda *xs: jnp.stack(xs), *initial_states)
+    evaluates = [make_evaluation(eval_env or environment, trainer, episode_length, s) for s in seeds]
+    state, metrics = _host_loop(trainer, iteration, state, n, evaluates, num_timesteps, host_states, progress_fns,
+                                checkpoint_fns, checkpoint_every, checkpoint_min_seconds, step_fn)
+    params = [{"new_skill": st.new_skill.policy_params, "scheduler": st.scheduler.policy_params,
+               "normalizer": st.normalizer} for st in (_seed_slice(state, i) for i in range(n))]
+    make_policy = make_policy_factory(int(environment.action_size), config, trainer.num_skills_total)
+    return make_policy, params, metrics
+
+
+def _seed_slice(tree, i: Optional[int]):
+    """Seed i of a tree batched over seeds (the tree itself when ``i`` is None: one unbatched run)."""
+    return tree if i is None else jax.tree.map(lambda x: x[i], tree)
+
+
+def _host_loop(trainer: Trainer, iteration, state, num_seeds: Optional[int], evaluates, num_timesteps,
+               host_states, progress_fns, checkpoint_fns, checkpoint_every, checkpoint_min_seconds, step_fn):
+    """The host side of ``train`` / ``train_seeds``: iterations, per-seed training statistics,
+    evaluations, progress and checkpoint calls. ``num_seeds`` None: ``state`` is one run; else it is
+    batched over that many seeds and every per-seed list has one entry each. Returns (state,
+    [last metrics per seed])."""
+    config = trainer.config
+    seeds = [None] if num_seeds is None else list(range(num_seeds))
+    start = int(jax.device_get(state.iteration).reshape(-1)[0])
     spi = trainer.steps_per_iteration
     num_iterations = max(1, math.ceil(int(num_timesteps) / spi))
-    log.info("training: %d iterations x %d env steps, %d scheduler + %d new-skill updates per iteration",
-             num_iterations, spi, trainer.scheduler_updates, trainer.new_skill_updates)
-    host_state = host_state or {}
-    metrics: dict = dict(host_state.get("metrics") or {})
-    t0 = time.perf_counter() - float(host_state.get("wall_time", 0.0))
-    acc = _Accumulator.from_dict(host_state.get("accumulator"))
+    log.info("training: %d iterations x %d env steps, %d scheduler + %d new-skill updates per iteration%s",
+             num_iterations, spi, trainer.scheduler_updates, trainer.new_skill_updates,
+             "" if num_seeds is None else f", {num_seeds} seeds")
+    host_states = [h or {} for h in host_states]
+    metrics = [dict(h.get("metrics") or {}) for h in host_states]
+    accs = [_Accumulator.from_dict(h.get("accumulator")) for h in host_states]
+    # (The wall clock of a vmapped run is shared: its seeds started together.)
+    t0 = time.perf_counter() - float(host_states[0].get("wall_time", 0.0))
     last_checkpoint = time.perf_counter()
     for it in range(start, num_iterations):
         state, train_m = iteration(state)
-        acc.add(train_m)
+        for j, i in enumerate(seeds):
+            accs[j].add(_seed_slice(train_m, i))
         if step_fn is not None:
             step_fn((it + 1) * spi)
         last = it == num_iterations - 1
         evaluated = (it + 1) % config.eval_every == 0 or last
         if evaluated:
-            metrics = dict(acc.summary(train_m), **evaluate(state, it + 1))
-            acc = _Accumulator()
-            metrics.update(env_steps=int(state.env_steps), wall_time=time.perf_counter() - t0, iteration=it + 1)
-            if progress_fn is not None:
-                progress_fn(int(state.env_steps), metrics)
+            # (Evaluations read the policies and the statistics: the replay is not sliced for them.)
+            light = state if num_seeds is None else state.replace(replay=None, actor=None, pending=None)
+            for j, i in enumerate(seeds):
+                one = _seed_slice(light, i)
+                metrics[j] = dict(accs[j].summary(_seed_slice(train_m, i)), **evaluates[j](one, it + 1))
+                accs[j] = _Accumulator()
+                metrics[j].update(env_steps=int(one.env_steps), wall_time=time.perf_counter() - t0, iteration=it + 1)
+                if progress_fns[j] is not None:
+                    progress_fns[j](int(one.env_steps), metrics[j])
         spaced = time.perf_counter() - last_checkpoint >= checkpoint_min_seconds
-        if checkpoint_fn is not None and _checkpoint_due(it, spi, checkpoint_every, evaluated and spaced, last):
+        if _checkpoint_due(it, spi, checkpoint_every, evaluated and spaced, last) and any(checkpoint_fns):
             last_checkpoint = time.perf_counter()
-            checkpoint_fn(state, {"iteration": it + 1, "env_steps": (it + 1) * spi, "metrics": metrics,
-                                  "accumulator": acc.to_dict(), "wall_time": time.perf_counter() - t0})
-    params = {"new_skill": state.new_skill.policy_params, "scheduler": state.scheduler.policy_params,
-              "normalizer": state.normalizer}
-    make_policy = make_policy_factory(int(environment.action_size), config, trainer.num_skills_total)
-    return make_policy, params, metrics
+            for j, i in enumerate(seeds):
+                if checkpoint_fns[j] is not None:
+                    checkpoint_fns[j](_seed_slice(state, i),
+                                      {"iteration": it + 1, "env_steps": (it + 1) * spi, "metrics": metrics[j],
+                                       "accumulator": accs[j].to_dict(), "wall_time": time.perf_counter() - t0})
+    return state, metrics
 
 
 def make_evaluation(env, trainer: Trainer, episode_length: int, seed: int) -> Callable[[TrainingState, int], dict]:
