@@ -72,6 +72,9 @@ class SchedulerConfig:
     dual_learning_rate: float = 1e-2
     grad_clip_norm: float = 40.0
     augmentation: bool = True
+    # False: the scheduler never chooses the new skill (the paper's Fig. 6a ablation; the new skill
+    # still learns from every transition). networks.SchedulerPolicy gives it a −1e9 logit bias.
+    new_skill_choice: bool = True
     # Learner updates during which only the critic learns (policy and duals frozen): lets the
     # long-horizon values of Eq. 3 propagate before policy improvement starts (0 = paper).
     policy_warmup_updates: int = 0

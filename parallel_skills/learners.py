@@ -137,7 +137,8 @@ def scheduler_networks(num_skills_total: int, config: SchedulerConfig) -> Tuple[
     """The flax modules (policy, critic) the scheduler learner uses for ``config``."""
     policy = SchedulerPolicy(num_skills=num_skills_total, num_lengths=config.num_lengths,
                              hidden=tuple(config.hidden),
-                             initial_max_length_prob=config.initial_max_length_prob)
+                             initial_max_length_prob=config.initial_max_length_prob,
+                             new_skill_choice=config.new_skill_choice)
     critic = SchedulerCritic(num_skills=num_skills_total, num_lengths=config.num_lengths,
                              max_length=config.max_length, hidden=tuple(config.hidden),
                              head_hidden=tuple(config.critic_head_hidden))

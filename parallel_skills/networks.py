@@ -89,6 +89,9 @@ def deterministic_action(mean: jnp.ndarray, std: jnp.ndarray = None) -> jnp.ndar
 
 # --------------------------------------------------------------------------- scheduler policy
 
+NEVER = -1e9  # a logit whose probability underflows to exactly 0 in float32
+
+
 def length_bias(num_lengths: int, initial_max_length_prob: float) -> np.ndarray:
     """Initial k-head bias (App. A.3): log-probs with P(k = max K) = p (last index) and
     (1 − p)/(M − 1) for each other length. [M] float32 (zeros if M == 1)."""
@@ -107,18 +110,25 @@ class SchedulerPolicy(nn.Module):
     Init: both heads have zero kernels; the i-head bias is 0 (uniform over skills) and the
     k-head bias is ``length_bias`` (P(k = max K) = initial_max_length_prob, rest uniform).
     The skill lengths must be sorted ascending so that the last index is max K.
+    ``new_skill_choice`` False: the last skill's (the new skill's) i-bias starts at −1e9, so its
+    probability is exactly 0 in float32; its logit's gradient, π − q = 0, is then exactly 0 too,
+    and it stays unchosen through training (and in exports, which carry the bias).
     """
 
     num_skills: int  # N + 1, including the new skill.
     num_lengths: int  # M.
     hidden: Tuple[int, ...] = (128, 256, 128)
     initial_max_length_prob: float = 0.95
+    new_skill_choice: bool = True
 
     @nn.compact
     def __call__(self, obs):
         h = LayerNormMLP(tuple(self.hidden), name="torso")(obs)
+        bias_i = np.zeros((self.num_skills,), np.float32)
+        if not self.new_skill_choice:
+            bias_i[-1] = NEVER
         logits_i = nn.Dense(self.num_skills, kernel_init=nn.initializers.zeros,
-                            bias_init=nn.initializers.zeros, name="head_i")(h)
+                            bias_init=lambda *_: jnp.asarray(bias_i), name="head_i")(h)
         bias = jnp.asarray(length_bias(self.num_lengths, self.initial_max_length_prob))
         logits_k = nn.Dense(self.num_lengths, kernel_init=nn.initializers.zeros,
                             bias_init=lambda *_: bias, name="head_k")(h)

@@ -254,3 +254,23 @@ def test_polyak_targets():
         np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError, match="target_tau must be in"):
         NewSkillConfig(target_tau=1.5)
+
+
+def test_scheduler_without_the_new_skill_choice_never_chooses_it():
+    """new_skill_choice=False (paper Fig. 6a ablation): the new skill's probability is exactly 0 at
+    init and stays exactly 0 (online and target policy) through updates on data that reward it."""
+    cfg = dataclasses.replace(SCFG, new_skill_choice=False)
+    state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, cfg)
+    base = _scheduler_batch(jax.random.PRNGKey(3))
+    # Reward the new skill (index N1 - 1) only: without the mask the policy would move towards it.
+    base = base.replace(reward=(base.skill == N1 - 1).astype(jnp.float32) + 0.5 * (base.skill == 0),
+                        is_decision=jnp.ones(B, bool), c=jnp.asarray(K, jnp.int32)[base.k_idx])
+    new_state, metrics = _scan_updates(scheduler_learner_update, cfg, 30)(state, base, jax.random.PRNGKey(4))
+    assert _finite(metrics) and _finite(new_state)
+    apply = make_scheduler_apply(N1, cfg)
+    for params in (state.policy_params, new_state.policy_params, new_state.target_policy_params):
+        li, _ = apply(params, base.obs)
+        assert np.all(np.asarray(jax.nn.softmax(li)[:, -1]) == 0.0)
+    li, _ = apply(new_state.policy_params, base.obs)
+    np.testing.assert_allclose(jax.nn.softmax(li)[:, :-1].sum(-1), 1.0, rtol=1e-6)  # the others share it all
+    assert not np.allclose(li[:, 0], 0.0)  # and the policy over them did learn

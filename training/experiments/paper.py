@@ -7,7 +7,8 @@ resumed — then learning-curve plots and a table of success at fixed budgets.
 
 A variant is a method (``training.run --method``), or a method with config settings in brackets,
 e.g. ``kl_reg[new_skill.mpo_epsilon=1,new_skill.mpo_alpha=0]`` (a baseline's sweep setting), or a
-named ablation of SkillS (``ABLATIONS``: k1, fixed100, no_augmentation, new_skill_mpo).
+named ablation of SkillS (``ABLATIONS``: k1, fixed100, no_augmentation, new_skill_mpo,
+no_new_skill_choice).
 
 Layout: ``OUT/<task>/<variant>/s<seed>/`` (a ``training.run`` directory, its log next to it as
 ``s<seed>.log``), ``OUT/<task>_new_skill.png`` (new skill alone, mean ± 1 std over seeds per
@@ -38,6 +39,7 @@ ABLATIONS = {
     "fixed100": ("skills", {"scheduler": {"skill_lengths": [100]}}),  # one fixed skill length
     "no_augmentation": ("skills", {"scheduler": {"augmentation": False}}),
     "new_skill_mpo": ("skills", {"new_skill": {"mpo_alpha": 0.0}}),  # MPO instead of CRR for the new skill
+    "no_new_skill_choice": ("skills", {"scheduler": {"new_skill_choice": False}}),  # Fig. 6a
 }
 FRACTIONS = (0.25, 0.5, 1.0)  # of the budget, for the table
 _VARIANT = re.compile(r"^(?P<name>[a-z0-9_]+)(\[(?P<settings>[^\]]*)\])?$")
