@@ -188,13 +188,14 @@ class Progress:
         with self._lock:
             self.steps = int(steps)
 
-    def update(self, steps: int, metrics: dict):
+    def update(self, steps: int, metrics: dict, prefix: str = ""):
+        """An evaluation's line (``prefix``: e.g. the seed of one run among several)."""
         with self._lock:
             self.steps = int(steps)
             self.success = metrics.get("eval/new_skill_success", self.success)
             if self.tty:
                 self._clear()
-            print(self.line(self.steps, self.rate(self.steps), metrics), file=self.out, flush=True)
+            print(prefix + self.line(self.steps, self.rate(self.steps), metrics), file=self.out, flush=True)
             if self.tty:
                 self._draw()
 

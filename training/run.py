@@ -72,6 +72,9 @@ def build_parser():
     p.add_argument("--num_timesteps", type=positive_int, default=None, help="env steps (default: 256k on CPU, 20M on GPU)")
     p.add_argument("--episode_length", type=positive_int, default=None)
     p.add_argument("--seed", type=nonnegative_int, default=None, help="default 0")
+    p.add_argument("--seeds", default=None,
+                   help="several seeds trained together in one vmapped iteration, e.g. 0,1,2: each writes its own "
+                        "run directory OUT/s<seed> (as --seed would); --resume --out OUT resumes them together")
     p.add_argument("--skills", default=None, help=f"skill set: {', '.join(SET_NAMES)}; default useful")
     p.add_argument("--skill_source", default=None, choices=list(SOURCES),
                    help="where the set's skills come from: scripted controllers, or the shipped neural library "
@@ -349,10 +352,65 @@ def _write_video(out, env, make_policy, params, seed, episode_length):
         print(f"video saved: {path}")
 
 
+SEEDS_JSON = "seeds.json"  # OUT/seeds.json of a --seeds group: {"seeds", "runs", "command"}
+
+
+def _parse_seeds(text: str) -> list:
+    try:
+        seeds = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise UsageError(f"--seeds must be non-negative integers separated by commas, got {text!r}") from None
+    if not seeds or min(seeds) < 0 or len(set(seeds)) != len(seeds):
+        raise UsageError(f"--seeds must be distinct non-negative integers separated by commas, got {text!r}")
+    return seeds
+
+
+def prepare_seeds(args, argv):
+    """A new ``--seeds`` group: validated like one run, then one run directory per seed in OUT and
+    OUT/seeds.json. Returns ([out], [run], resolved, env)."""
+    import argparse
+
+    seeds = _parse_seeds(args.seeds)
+    if args.seed is not None:
+        raise UsageError("--seed and --seeds: give one of them")
+    out = args.out or os.path.join("runs", f"{args.task or DEFAULTS['task']}-{args.method or DEFAULTS['method']}-"
+                                   f"seeds{'_'.join(map(str, seeds))}-{time.strftime('%Y%m%d-%H%M%S')}")
+    if os.path.exists(out):
+        raise UsageError(f"run directory {out} already exists; choose a new --out, or --resume it "
+                         "(runs are never overwritten)")
+    _check_writable(out)
+    prepared = [prepare_new(argparse.Namespace(**dict(vars(args), seed=s, out=os.path.join(out, f"s{s}"))), argv)
+                for s in seeds]
+    with open(os.path.join(out, SEEDS_JSON), "w") as f:
+        json.dump({"seeds": seeds, "runs": [f"s{s}" for s in seeds], "command": _command(argv)}, f, indent=2)
+    return [p[0] for p in prepared], [p[1] for p in prepared], prepared[0][2], prepared[0][3]
+
+
+def resume_seeds(args):
+    """``--resume --out OUT`` of a ``--seeds`` group: each run validated as a single resume."""
+    import argparse
+
+    if args.seeds is not None:
+        raise UsageError("--resume of a --seeds group takes its seeds from seeds.json: drop --seeds")
+    try:
+        with open(os.path.join(args.out, SEEDS_JSON)) as f:
+            names = list(json.load(f)["runs"])
+    except (OSError, ValueError, KeyError, TypeError):
+        raise UsageError(f"cannot resume: {os.path.join(args.out, SEEDS_JSON)} is unreadable") from None
+    prepared = [prepare_resume(argparse.Namespace(**dict(vars(args), out=os.path.join(args.out, n)))) for n in names]
+    resolved = prepared[0][2]
+    if any(p[2] != resolved for p in prepared) or len({p[1].num_timesteps for p in prepared}) != 1:
+        raise UsageError(f"cannot resume {args.out} together: its runs no longer share one config and budget "
+                         "(resume them one by one: --resume --out DIR/sSEED)")
+    return [p[0] for p in prepared], [p[1] for p in prepared], resolved, prepared[0][3]
+
+
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     enable_compilation_cache()
+    if args.seeds is not None or (args.resume and args.out and os.path.isfile(os.path.join(args.out, SEEDS_JSON))):
+        return _main_seeds(args, argv)
     out, run, resolved, env = main_guard(lambda: prepare_resume(args) if args.resume else prepare_new(args, argv))
     main_guard(lambda: rundir.lock(out))
     try:
@@ -361,6 +419,22 @@ def main(argv=None):
         _train(out, run, resolved, env, resume=args.resume, video=args.video or run.video)
     finally:
         rundir.unlock(out)
+
+
+def _main_seeds(args, argv):
+    outs, runs, resolved, env = main_guard(lambda: resume_seeds(args) if args.resume else prepare_seeds(args, argv))
+    locked = []
+    try:
+        for out in outs:
+            main_guard(lambda o=out: rundir.lock(o))
+            locked.append(out)
+        if args.resume:
+            for out, run in zip(outs, runs):
+                rundir.extend(out, run, _command(argv))
+        _train_seeds(outs, runs, resolved, env, resume=args.resume, video=args.video or runs[0].video)
+    finally:
+        for out in locked:
+            rundir.unlock(out)
 
 
 def skill_sources(skills, physics: str) -> list[dict]:
@@ -383,14 +457,15 @@ def skill_sources(skills, physics: str) -> list[dict]:
     return out
 
 
-def _restore(out, ckpt, csv_path, env, skills, resolved, seed: int):
-    """The checkpointed (state, host state) of a resumed run; metrics.csv is cut back to the rows the
-    checkpoint covers and a half-written export is removed."""
+def _restore(out, ckpt, csv_path, env, skills, resolved, seed: int, step=None):
+    """The checkpointed (state, host state) of a resumed run (checkpoint ``step``, default the
+    latest); metrics.csv is cut back to the rows the checkpoint covers and a half-written export is
+    removed."""
     from training.checkpointing import CheckpointError, abstract_training_state
 
     abstract, fresh_replay = abstract_training_state(env, skills, resolved, seed)
     try:
-        state, host = ckpt.restore(abstract, fresh_replay)
+        state, host = ckpt.restore(abstract, fresh_replay, step=step)
     except CheckpointError as e:
         raise UsageError(f"cannot resume: {e}") from None
     if not all(k in host for k in ("csv_bytes", "csv_rows", "env_steps")):
@@ -411,72 +486,144 @@ def _restore(out, ckpt, csv_path, env, skills, resolved, seed: int):
     return state, host
 
 
-def _train(out, run, resolved, env, resume: bool, video: bool = False):
-    from parallel_skills import train
-    from parallel_skills.config import describe_schedule, learner_schedule
-    from training import skill_library
-    from training.checkpointing import Checkpointer
+class _RunFiles:
+    """One run directory's files while it trains: metrics.csv rows, TensorBoard events and
+    checkpoints (``progress`` and ``checkpoint`` are what ``train`` calls back)."""
 
-    names = list(run.skills)
-    skills = main_guard(lambda: skill_library.load_skills(names, run.physics, run.skill_source,
-                                                       env.observation_size, env.action_size,
-                                                       skill_dir=run.skill_dir))
-    seed, num_timesteps = int(run.seed), int(run.num_timesteps)
-    ckpt = Checkpointer(out, save_replay=run.replay_checkpoint)
-    csv_path = os.path.join(out, "metrics.csv")
-    initial_state = host_state = None
-    if resume:
-        initial_state, host_state = main_guard(lambda: _restore(out, ckpt, csv_path, env, skills, resolved, seed))
-    else:
-        print(f"run dir: {out}")
-    print(f"task={run.task} physics={run.physics} method={resolved.method} skills={names or '(none)'}")
+    def __init__(self, out, run, resolved, resume: bool, host_state, bar, prefix: str = ""):
+        from training.checkpointing import Checkpointer
+
+        self.out, self.bar, self.prefix = out, bar, prefix
+        self.ckpt = Checkpointer(out, save_replay=run.replay_checkpoint)
+        csv_path = os.path.join(out, "metrics.csv")
+        start_steps = int(host_state["env_steps"]) if host_state else 0
+        self.csv_rows = int(host_state["csv_rows"]) if host_state else 0
+        # A resumed run keeps the columns its metrics.csv was started with (runs from older versions).
+        header = _csv_header(csv_path) if resume else None
+        self.fields = header or CSV_FIELDS
+        # TensorBoard: a resume opens a new event file that purges the steps past the checkpoint.
+        self.tb = TensorBoardLogger(out, list(run.skills), resolved.scheduler.skill_lengths,
+                                    purge_step=start_steps + 1 if resume else None)
+        self.f = open(csv_path, "ab" if resume else "wb")
+        if not header:
+            self._write_row(self.fields)
+
+    def _write_row(self, row):
+        buf = io.StringIO()
+        csv.writer(buf).writerow(row)
+        self.f.write(buf.getvalue().encode())
+        self.f.flush()
+
+    def progress(self, steps, m):
+        m = dict(m, rss_mb=resident_mb())
+        self._write_row(format_row(m, self.fields))
+        self.csv_rows += 1
+        self.tb.log(steps, m)
+        self.bar.update(steps, m, self.prefix)
+
+    def checkpoint(self, state, host):
+        os.fsync(self.f.fileno())  # the rows this checkpoint covers are on disk first
+        self.ckpt.save(state, dict(host, csv_bytes=self.f.tell(), csv_rows=self.csv_rows))
+
+    def close(self):
+        self.f.close()
+        self.tb.close()
+        self.ckpt.close()
+
+
+def _load_skills(run, env):
+    from training import skill_library
+
+    return main_guard(lambda: skill_library.load_skills(list(run.skills), run.physics, run.skill_source,
+                                                        env.observation_size, env.action_size,
+                                                        skill_dir=run.skill_dir))
+
+
+def _announce(run, resolved, resume: bool, outs):
+    from parallel_skills.config import describe_schedule, learner_schedule
+
+    if not resume:
+        for out in outs:
+            print(f"run dir: {out}")
+    print(f"task={run.task} physics={run.physics} method={resolved.method} skills={list(run.skills) or '(none)'}")
     if run.auto and not resume:  # (train() gets the resolved config: it has nothing to choose)
         print("defaults chosen automatically: " + ", ".join(run.auto))
     print(describe_schedule(learner_schedule(resolved)))
 
+
+def _train(out, run, resolved, env, resume: bool, video: bool = False):
+    from parallel_skills import train
+    from training.checkpointing import Checkpointer
+
+    skills = _load_skills(run, env)
+    seed, num_timesteps = int(run.seed), int(run.num_timesteps)
+    initial_state = host_state = None
+    if resume:
+        initial_state, host_state = main_guard(lambda: _restore(
+            out, Checkpointer(out, save_replay=run.replay_checkpoint), os.path.join(out, "metrics.csv"), env, skills,
+            resolved, seed))
+    _announce(run, resolved, resume, [out])
     t0 = time.perf_counter()
-    start_steps = int(host_state["env_steps"]) if host_state else 0
-    csv_rows = int(host_state["csv_rows"]) if host_state else 0
-    # A resumed run keeps the columns its metrics.csv was started with (runs from older versions).
-    header = _csv_header(csv_path) if resume else None
-    fields = header or CSV_FIELDS
-    # TensorBoard: a resume opens a new event file that purges the steps past the checkpoint.
-    tb = TensorBoardLogger(out, names, resolved.scheduler.skill_lengths,
-                           purge_step=start_steps + 1 if resume else None)
-    bar = Progress(num_timesteps, start_steps)
-
-    with open(csv_path, "ab" if resume else "wb") as f:
-        def write_row(row):
-            buf = io.StringIO()
-            csv.writer(buf).writerow(row)
-            f.write(buf.getvalue().encode())
-            f.flush()
-
-        if not header:
-            write_row(fields)
-
-        def progress(steps, m):
-            nonlocal csv_rows
-            m = dict(m, rss_mb=resident_mb())
-            write_row(format_row(m, fields))
-            csv_rows += 1
-            tb.log(steps, m)
-            bar.update(steps, m)
-
-        def checkpoint(state, host):
-            os.fsync(f.fileno())  # the rows this checkpoint covers are on disk first
-            ckpt.save(state, dict(host, csv_bytes=f.tell(), csv_rows=csv_rows))
-
+    bar = Progress(num_timesteps, int(host_state["env_steps"]) if host_state else 0)
+    files = _RunFiles(out, run, resolved, resume, host_state, bar)
+    try:
         make_policy, params, metrics = train(
-            env, skills, num_timesteps=num_timesteps, seed=seed, config=resolved, progress_fn=progress,
-            initial_state=initial_state, host_state=host_state, checkpoint_fn=checkpoint,
+            env, skills, num_timesteps=num_timesteps, seed=seed, config=resolved, progress_fn=files.progress,
+            initial_state=initial_state, host_state=host_state, checkpoint_fn=files.checkpoint,
             checkpoint_every=run.checkpoint_every, checkpoint_min_seconds=CHECKPOINT_MIN_SECONDS,
             step_fn=bar.advance, auto_config=False)
-    bar.close()
-    tb.close()
-    ckpt.close()
-
+    finally:
+        bar.close()
+        files.close()
     _write_outputs(out, run, resolved, env, skills, make_policy, params, metrics, video, time.perf_counter() - t0)
+
+
+def _common_step(ckpts, outs) -> int:
+    """The latest checkpoint iteration all runs of a ``--seeds`` group have (they save together; a
+    process killed between two of their saves leaves the last one behind in some)."""
+    common = set.intersection(*(set(c.steps()) for c in ckpts))
+    if not common:
+        raise UsageError(f"cannot resume: the runs of {os.path.dirname(outs[0])} share no checkpoint iteration "
+                         "(resume them one by one: --resume --out DIR/sSEED)")
+    return max(common)
+
+
+def _train_seeds(outs, runs, resolved, env, resume: bool, video: bool = False):
+    """The runs of ``--seeds`` (same config, one seed each) in one vmapped training
+    (``parallel_skills.train.train_seeds``); each writes its own run directory as a single run would."""
+    from parallel_skills.train import train_seeds
+    from training.checkpointing import Checkpointer
+
+    run = runs[0]
+    skills = _load_skills(run, env)
+    seeds = [int(r.seed) for r in runs]
+    initial_states = host_states = None
+    if resume:
+        ckpts = [Checkpointer(out, save_replay=r.replay_checkpoint) for out, r in zip(outs, runs)]
+        step = main_guard(lambda: _common_step(ckpts, outs))
+        restored = [main_guard(lambda o=out, c=c, r=r: _restore(o, c, os.path.join(o, "metrics.csv"), env, skills,
+                                                                 resolved, int(r.seed), step=step))
+                    for out, c, r in zip(outs, ckpts, runs)]
+        initial_states, host_states = [x[0] for x in restored], [x[1] for x in restored]
+    _announce(run, resolved, resume, outs)
+    t0 = time.perf_counter()
+    bar = Progress(int(run.num_timesteps), int(host_states[0]["env_steps"]) if host_states else 0)
+    files = [_RunFiles(out, r, resolved, resume, host_states[i] if host_states else None, bar, f"s{r.seed} ")
+             for i, (out, r) in enumerate(zip(outs, runs))]
+    try:
+        make_policy, params, metrics = train_seeds(
+            env, skills, seeds=seeds, num_timesteps=int(run.num_timesteps), config=resolved,
+            progress_fns=[f.progress for f in files], initial_states=initial_states, host_states=host_states,
+            checkpoint_fns=[f.checkpoint for f in files], checkpoint_every=run.checkpoint_every,
+            checkpoint_min_seconds=CHECKPOINT_MIN_SECONDS, step_fn=bar.advance, auto_config=False)
+    finally:
+        bar.close()
+        for f in files:
+            f.close()
+    seconds = time.perf_counter() - t0
+    for out, r, p, m in zip(outs, runs, params, metrics):
+        _write_outputs(out, r, resolved, env, skills, make_policy, p, m, video, seconds)
+
 
 def _write_outputs(out, run, resolved, env, skills, make_policy, params, metrics, video: bool, seconds: float):
     """The finished run's new skill (``new_skill.npz``), plots, video and ``export.npz``."""
