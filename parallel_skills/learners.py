@@ -64,17 +64,23 @@ def _optimizer(learning_rate: float, clip: float) -> optax.GradientTransformatio
     return optax.chain(optax.clip_by_global_norm(clip), optax.adam(learning_rate))
 
 
-def learner_step(state, grads, config, update_duals: bool):
+def learner_step(state, grads, config, update_duals: bool, update_critic: bool = True):
     """Apply one gradient step to policy, critic (and duals), then the periodic hard target copies.
 
     Shared by both learners (``LearnerState``); ``grads`` = (policy, critic, dual) gradients. Duals are kept ≥ exp-floor via ``_MIN_LOG_DUAL``.
+    ``update_critic`` False: the critic, its optimiser state and its target are left as they are
+    (the critic gradient is not read; RHPO's categorical lives in a scheduler state whose critic it
+    does not use).
     """
     g_pol, g_crit, g_dual = grads
     opt = _optimizer(config.learning_rate, config.grad_clip_norm)
     upd, policy_opt_state = opt.update(g_pol, state.policy_opt_state, state.policy_params)
     new_policy = optax.apply_updates(state.policy_params, upd)
-    upd, critic_opt_state = opt.update(g_crit, state.critic_opt_state, state.critic_params)
-    new_critic = optax.apply_updates(state.critic_params, upd)
+    if update_critic:
+        upd, critic_opt_state = opt.update(g_crit, state.critic_opt_state, state.critic_params)
+        new_critic = optax.apply_updates(state.critic_params, upd)
+    else:
+        new_critic, critic_opt_state = state.critic_params, state.critic_opt_state
     if update_duals:
         dual_opt = optax.adam(config.dual_learning_rate)
         upd, dual_opt_state = dual_opt.update(g_dual, state.dual_opt_state, state.dual_params)
@@ -91,6 +97,8 @@ def learner_step(state, grads, config, update_duals: bool):
                                               config.target_actor_period)
         target_critic = optax.periodic_update(new_critic, state.target_critic_params, steps,
                                               config.target_critic_period)
+    if not update_critic:
+        target_critic = state.target_critic_params
     return state.replace(
         policy_params=new_policy, critic_params=new_critic,
         target_policy_params=target_policy, target_critic_params=target_critic,
@@ -400,15 +408,21 @@ def new_skill_targets(state: LearnerState, batch: Transition, networks, key_next
     q_next = jnp.min(critic_values(critic, state.target_critic_params, tile_obs(batch.next_obs, j), a_next),
                      axis=-1)  # [B, J]
     y = td_target(batch.reward, batch.discount, q_next, config.discount)
-    if config.mpo_alpha < 1.0:
+    t_mean = t_std = a_mpo = jnp.zeros((0,))
+    if config.baseline == "kl_reg" and config.mpo_alpha < 1.0:  # (π_old is not needed: the prior proposes)
+        a_mpo = sample_mixture(teacher.means, teacher.std, key_mpo, config.mpo_num_samples)
+    elif _uses_gaussian_mpo(config):
         t_mean, t_std = policy.apply(state.target_policy_params, batch.obs)
-        if config.baseline == "kl_reg":
-            a_mpo = sample_mixture(teacher.means, teacher.std, key_mpo, config.mpo_num_samples)
-        else:
-            a_mpo = _sample_n(t_mean, t_std, config.mpo_num_samples, key_mpo)
-    else:
-        t_mean = t_std = a_mpo = jnp.zeros((0,))
+        a_mpo = _sample_n(t_mean, t_std, config.mpo_num_samples, key_mpo)
     return NewSkillTargets(y=y, mpo_mean=t_mean, mpo_std=t_std, mpo_actions=a_mpo)
+
+
+def _uses_gaussian_mpo(config: NewSkillConfig) -> bool:
+    """Whether the policy loss has a Gaussian MPO term (weight > 0): the mpo baseline, or dagger
+    with dagger_alpha < 1, inside a CRR mix with mpo_alpha < 1."""
+    if config.mpo_alpha >= 1.0 or config.baseline == "kl_reg":
+        return False
+    return config.baseline == "mpo" or config.dagger_alpha < 1.0
 
 
 def new_skill_loss(params, batch: Transition, targets: NewSkillTargets, networks, key_crr,
@@ -420,14 +434,14 @@ def new_skill_loss(params, batch: Transition, targets: NewSkillTargets, networks
     policy, critic = networks
     j = config.num_action_samples
     use_mpo = config.mpo_alpha < 1.0
-    n_mpo = config.mpo_num_samples if use_mpo else 0
+    n_mpo = targets.mpo_actions.shape[1] if targets.mpo_actions.ndim == 3 else 0  # (none for pure DAGGER)
     obs, action, weight = batch.obs, batch.action, batch.weight
     mean, std = policy.apply(policy_params, obs)
     a_j = jax.lax.stop_gradient(_sample_n(mean, std, j, key_crr))
     q = critic_values(critic, critic_params, obs, action)  # [B, E]: every critic regresses on the same target
     # The sampled actions' values only feed the (stop-gradient) advantage and MPO weights: evaluated
     # with stop-gradient parameters, so that the backward pass runs on the stored actions' rows alone.
-    sampled = jnp.concatenate([a_j] + ([targets.mpo_actions] if use_mpo else []), axis=1)  # [B, J (+ n_mpo), A]
+    sampled = jnp.concatenate([a_j] + ([targets.mpo_actions] if n_mpo else []), axis=1)  # [B, J (+ n_mpo), A]
     q_sampled = critic_values(critic, jax.lax.stop_gradient(critic_params), tile_obs(obs, j + n_mpo), sampled)
     q_ens = jnp.concatenate([q[:, None], q_sampled], axis=1)  # [B, 1 + J (+ n_mpo), E]
     critic_loss = masked_mean(jnp.sum(0.5 * jnp.square(q - targets.y[:, None]), axis=-1), weight)
@@ -467,7 +481,7 @@ def baseline_policy_loss(mean, std, targets: NewSkillTargets, q_mpo, dual_params
         weights, loss_temperature = prior_e_step(q_mpo, log_prior, log_prior, temperature, config.mpo_epsilon, weight)
         loss, stats = kl_reg_mpo_loss(mean, std, targets.mpo_actions, weights, weight)
         return loss + loss_temperature, dict(stats, mpo_temperature=temperature)
-    if config.baseline == "dagger" and config.dagger_alpha == 1.0:
+    if not _uses_gaussian_mpo(config):  # pure DAGGER (dagger_alpha = 1): no MPO term, no samples
         loss_mpo, stats = jnp.zeros(()), {}
     else:
         loss_mpo, stats = gaussian_mpo_loss(

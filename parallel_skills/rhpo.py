@@ -42,7 +42,7 @@ class RHPOTargets(NamedTuple):
     logits: jax.Array  # [B, N+1] π_old(c|s)
     mean: jax.Array  # [B, A] π_old's trainable component at s
     std: jax.Array  # [B, A]
-    actions: jax.Array  # [B, n_mpo, A] samples of π_old at s (MPO mix only, else [0])
+    actions: jax.Array  # [B, n_mpo, A] samples of π_old at s (these four: MPO mix only, else [0])
 
 
 def _mixture(categorical, component, cat_params, comp_params, obs, skills: SkillMixture):
@@ -66,10 +66,12 @@ def rhpo_targets(categorical_state: LearnerState, state: LearnerState, batch: Tr
     a_next = _sample(*nxt[:3], key_next, j)
     q_next = jnp.min(critic_values(critic, state.target_critic_params, tile_obs(batch.next_obs, j), a_next), -1)
     y = td_target(batch.reward, batch.discount, q_next, config.discount)
+    if config.mpo_alpha >= 1.0:  # pure CRR: no π_old term
+        empty = jnp.zeros((0,))
+        return RHPOTargets(y=y, logits=empty, mean=empty, std=empty, actions=empty)
     logits, means, stds, mean, std = _mixture(categorical, component, categorical_state.target_policy_params,
                                               state.target_policy_params, batch.obs, skills)
-    actions = (_sample(logits, means, stds, key_mpo, config.mpo_num_samples) if config.mpo_alpha < 1.0
-               else jnp.zeros((0,)))
+    actions = _sample(logits, means, stds, key_mpo, config.mpo_num_samples)
     return RHPOTargets(y=y, logits=logits, mean=mean, std=std, actions=actions)
 
 
@@ -130,6 +132,7 @@ def rhpo_learner_update(categorical_state: LearnerState, state: LearnerState, ba
     g_cat, g_comp, g_critic, g_duals, g_cat_duals = grads
     update_duals = config.mpo_alpha < 1.0
     state = learner_step(state, (g_comp, g_critic, g_duals), config, update_duals)
-    no_critic = jax.tree.map(jnp.zeros_like, categorical_state.critic_params)  # (the scheduler's critic is unused)
-    categorical_state = learner_step(categorical_state, (g_cat, no_critic, g_cat_duals), sched_config, update_duals)
+    # (The scheduler state's critic is not RHPO's: left as it is.)
+    categorical_state = learner_step(categorical_state, (g_cat, None, g_cat_duals), sched_config, update_duals,
+                                     update_critic=False)
     return categorical_state, state, stats

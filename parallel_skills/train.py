@@ -504,8 +504,9 @@ def _host_loop(trainer: Trainer, iteration, state, num_seeds: Optional[int], eva
     last_checkpoint = time.perf_counter()
     for it in range(start, num_iterations):
         state, train_m = iteration(state)
+        summed = _Accumulator.fetch(train_m)  # one device-to-host copy for all seeds
         for j, i in enumerate(seeds):
-            accs[j].add(_seed_slice(train_m, i))
+            accs[j].add(_seed_slice(summed, i))
         if step_fn is not None:
             step_fn((it + 1) * spi)
         last = it == num_iterations - 1
@@ -558,13 +559,19 @@ class _Accumulator:
 
     SUMMED = ("episodes", "nonfinite_transitions", "skill_histogram", "length_histogram", "skill_steps",
               "skill_runs")
+    WEIGHTED = ("episode_return", "episode_success")  # means over the episodes that ended
 
     def __init__(self):
         self.sums: dict = {}
-        self.weighted = {"episode_return": 0.0, "episode_success": 0.0}
+        self.weighted = {k: 0.0 for k in self.WEIGHTED}
+
+    @classmethod
+    def fetch(cls, m) -> dict:
+        """The metrics ``add`` reads, on the host (numpy)."""
+        return jax.device_get({k: m[k] for k in cls.SUMMED + cls.WEIGHTED})
 
     def add(self, m):
-        m = jax.device_get({k: m[k] for k in self.SUMMED + tuple(self.weighted)})
+        m = self.fetch(m)
         for k in self.SUMMED:
             self.sums[k] = self.sums.get(k, 0.0) + np.asarray(m[k], np.float64)
         for k in self.weighted:
