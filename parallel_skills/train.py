@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from parallel_skills import learners, networks
+from parallel_skills import learners, networks, sharding
 from parallel_skills import normalization as obs_norm
 from parallel_skills.acting import Actor, ActorState, StepStats
 from parallel_skills.config import TrainConfig, resolve, updates_per_iteration
@@ -129,8 +129,13 @@ def iteration_metrics(traj: Transition, stats: StepStats, num_skills_total: int,
     }
 
 
-def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> Trainer:
-    """Build the pure ``init`` / ``iteration`` functions for ``environment`` and frozen ``skills``."""
+def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig, mesh=None) -> Trainer:
+    """Build the pure ``init`` / ``iteration`` functions for ``environment`` and frozen ``skills``.
+
+    ``mesh`` (``sharding.make_mesh``, more than one device): the iteration constrains the actor
+    state to be split along its env axis and every learner batch along its rows (the parameters
+    stay replicated); with ``sharding.state_shardings`` as the jit's in / out shardings it runs data
+    parallel over the mesh's devices and computes what it computes on one device."""
     if config.num_envs is None or config.replay_size is None:
         raise ValueError("make_trainer needs a resolved config (see parallel_skills.config.resolve)")
     initial_skill = finetune_source(skills, config) if config.method == "finetune" else None
@@ -151,6 +156,13 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
     with_teacher = nc.mpo_alpha < 1.0 and nc.baseline in ("kl_reg", "dagger")
     if rhpo and not skills:
         raise ValueError("method rhpo needs at least one frozen skill (its mixture's components)")
+    if mesh is not None and mesh.size > 1:
+        sharding.check_divisible(config, mesh.size)
+        envs = lambda tree: sharding.shard_envs(tree, mesh, config.num_envs)  # noqa: E731
+        rows = lambda sample, n: (lambda k: sharding.shard_rows(sample(k), mesh, n))  # noqa: E731
+    else:
+        envs = lambda tree: tree  # noqa: E731
+        rows = lambda sample, n: sample  # noqa: E731
 
     def init(key) -> TrainingState:
         k_s, k_n, k_e, k_run = jax.random.split(key, 4)
@@ -165,8 +177,9 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
 
     def collect_insert(ts: TrainingState, key):
         """Acting half of an iteration: T steps of the B envs, inserted into the replay."""
-        actor_state, traj, stats = actor.collect(ts.actor, ts.scheduler.policy_params, ts.new_skill.policy_params,
-                                                 ts.normalizer, key, config.unroll_length)
+        actor_state, traj, stats = actor.collect(envs(ts.actor), ts.scheduler.policy_params,
+                                                 ts.new_skill.policy_params, ts.normalizer, key, config.unroll_length)
+        actor_state = envs(actor_state)
         replay_state, pending = replay.insert(ts.replay, ts.pending, traj, stats.done)
         flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731  [T, B, ...] -> [T·B, ...]
         normalizer = ts.normalizer
@@ -206,14 +219,15 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig) -> T
         size = replay.size(ts.replay)
         if rhpo:  # one update trains the categorical (the scheduler's policy) and the component
             (sched_state, new_state), new_m = run_learner(
-                rhpo_update, lambda k: sample_rhpo(ts, k), nc, (ts.scheduler, ts.new_skill), k_n, n_new,
-                size >= nc.min_replay_size)
+                rhpo_update, rows(lambda k: sample_rhpo(ts, k), nc.batch_size), nc, (ts.scheduler, ts.new_skill),
+                k_n, n_new, size >= nc.min_replay_size)
             return sched_state, new_state, {}, new_m
         sched_state, sched_m = run_learner(
-            learners.scheduler_learner_update, lambda k: replay.sample_scheduler(ts.replay, ts.normalizer, k),
-            sc, ts.scheduler, k_s, n_sched, learn_scheduler & (size >= sc.min_replay_size))
-        new_state, new_m = run_learner(new_skill_update, lambda k: sample_new_skill(ts, k), nc, ts.new_skill, k_n,
-                                       n_new, size >= nc.min_replay_size)
+            learners.scheduler_learner_update,
+            rows(lambda k: replay.sample_scheduler(ts.replay, ts.normalizer, k), sc.batch_size), sc, ts.scheduler,
+            k_s, n_sched, learn_scheduler & (size >= sc.min_replay_size))
+        new_state, new_m = run_learner(new_skill_update, rows(lambda k: sample_new_skill(ts, k), nc.batch_size), nc,
+                                       ts.new_skill, k_n, n_new, size >= nc.min_replay_size)
         return sched_state, new_state, sched_m, new_m
 
     def iteration(ts: TrainingState):
@@ -302,7 +316,7 @@ def make_policy_factory(action_size: int, config: TrainConfig, num_skills_total:
     return make_policy
 
 
-def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: int):
+def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: int, mesh=None):
     """Jitted whole-episode evaluations of the new skill alone and of the scheduler alone
     (paper App. C.3): ``eval_new(new_params, normalizer, key)``,
     ``eval_scheduler(sched_params, new_params, normalizer, key)`` -> dict of per-episode ``return`` /
@@ -383,6 +397,7 @@ def train(
     checkpoint_min_seconds: float = 0.0,
     step_fn: Optional[Callable[[int], None]] = None,
     auto_config: bool = True,
+    mesh=None,
 ):
     """Train SkillS on ``environment`` (Brax env API) with frozen ``skills``.
 
@@ -402,14 +417,22 @@ def train(
     time). It must finish with ``state`` before returning (the next iteration donates its
     buffers). ``train(..., initial_state=state, host_state=host_state)`` with the same arguments
     otherwise continues that run exactly: the evaluation keys derive from (seed, iteration).
+
+    ``mesh`` (``parallel_skills.sharding.make_mesh()``; several devices, possibly several
+    processes): the run is data parallel over its devices (envs and learner batches split,
+    parameters and replay replicated; ``sharding``'s docstring) and computes what the one-device
+    run computes, up to float summation order. ``num_envs`` and both learner batch sizes must
+    divide by the device count. Every process calls ``train`` alike; the callbacks run in each.
     """
     config = _checked_config(environment, skills, config, num_timesteps, num_envs, checkpoint_every, auto_config)
     episode_length = int(episode_length or getattr(environment, "episode_length", 1000))
-    trainer = make_trainer(environment, skills, config)
-    iteration = jax.jit(trainer.iteration, donate_argnums=0)
-    state = jax.jit(trainer.init)(jax.random.PRNGKey(seed)) if initial_state is None else initial_state
+    mesh = mesh if mesh is not None and mesh.size > 1 else None
+    trainer = make_trainer(environment, skills, config, mesh)
+    init, iteration, place = _compiled(trainer, mesh, seed_axis=False)
+    state = init(jax.random.PRNGKey(seed)) if initial_state is None else place(initial_state)
     state, (metrics,) = _host_loop(
-        trainer, iteration, state, None, [make_evaluation(eval_env or environment, trainer, episode_length, seed)],
+        trainer, iteration, state, None,
+        [make_evaluation(eval_env or environment, trainer, episode_length, seed, mesh)],
         num_timesteps, [host_state], [progress_fn], [checkpoint_fn], checkpoint_every, checkpoint_min_seconds,
         step_fn)
     params = {"new_skill": state.new_skill.policy_params, "scheduler": state.scheduler.policy_params,
@@ -436,6 +459,7 @@ def train_seeds(
     checkpoint_min_seconds: float = 0.0,
     step_fn: Optional[Callable[[int], None]] = None,
     auto_config: bool = True,
+    mesh=None,
 ):
     """``train`` for several seeds at once: one compiled iteration ``vmap``-ed over the seed axis
     (S = len(seeds) runs in lockstep: on an accelerator S times the envs for about the cost of one
@@ -458,23 +482,43 @@ def train_seeds(
         raise ValueError(f"progress_fns, host_states and checkpoint_fns need one entry per seed ({n})")
     config = _checked_config(environment, skills, config, num_timesteps, num_envs, checkpoint_every, auto_config)
     episode_length = int(episode_length or getattr(environment, "episode_length", 1000))
-    trainer = make_trainer(environment, skills, config)
-    iteration = jax.jit(jax.vmap(trainer.iteration), donate_argnums=0)
+    mesh = mesh if mesh is not None and mesh.size > 1 else None
+    trainer = make_trainer(environment, skills, config, mesh)
+    init, iteration, place = _compiled(trainer, mesh, seed_axis=True)
     if initial_states is None:
-        state = jax.jit(jax.vmap(trainer.init))(jnp.stack([jax.random.PRNGKey(s) for s in seeds]))
+        state = init(jnp.stack([jax.random.PRNGKey(s) for s in seeds]))
     else:
         if len(initial_states) != n:
             raise ValueError(f"initial_states needs one state per seed ({n}), got {len(initial_states)}")
         if len({int(s.iteration) for s in initial_states}) != 1:
             raise ValueError("initial_states must all be at the same iteration (checkpoints of one vmapped run)")
-        state = jax.tree.map(lambda *xs: jnp.stack(xs), *initial_states)
-    evaluates = [make_evaluation(eval_env or environment, trainer, episode_length, s) for s in seeds]
+        state = place(jax.tree.map(lambda *xs: jnp.stack(xs), *initial_states))
+    evaluates = [make_evaluation(eval_env or environment, trainer, episode_length, s, mesh) for s in seeds]
     state, metrics = _host_loop(trainer, iteration, state, n, evaluates, num_timesteps, host_states, progress_fns,
                                 checkpoint_fns, checkpoint_every, checkpoint_min_seconds, step_fn)
     params = [{"new_skill": st.new_skill.policy_params, "scheduler": st.scheduler.policy_params,
                "normalizer": st.normalizer} for st in (_seed_slice(state, i) for i in range(n))]
     make_policy = make_policy_factory(int(environment.action_size), config, trainer.num_skills_total)
     return make_policy, params, metrics
+
+
+def _compiled(trainer: Trainer, mesh, seed_axis: bool):
+    """``(init(key), iteration(state), place(state))`` jitted for one device (``mesh`` None) or data
+    parallel over ``mesh`` (``sharding.state_shardings`` in and out; ``place`` puts a restored state
+    on the mesh). ``seed_axis``: ``train_seeds``' functions, vmapped over a leading seed axis."""
+    init_fn, iter_fn = trainer.init, trainer.iteration
+    if seed_axis:
+        init_fn, iter_fn = jax.vmap(init_fn), jax.vmap(iter_fn)
+    if mesh is None:
+        return jax.jit(init_fn), jax.jit(iter_fn, donate_argnums=0), lambda state: state
+    rep = sharding.replicated(mesh)
+    key = jax.random.PRNGKey(0)
+    abstract = jax.eval_shape(init_fn, jnp.stack([key]) if seed_axis else key)
+    state_sh = sharding.state_shardings(abstract, mesh, trainer.config.num_envs, seed_axis=seed_axis)
+    init_jit = jax.jit(init_fn, out_shardings=state_sh)
+    iteration = jax.jit(iter_fn, donate_argnums=0, in_shardings=(state_sh,), out_shardings=(state_sh, rep))
+    return (lambda keys: init_jit(sharding.put(keys, rep)), iteration,
+            lambda state: sharding.put(state, state_sh))
 
 
 def _seed_slice(tree, i: Optional[int]):
@@ -532,23 +576,27 @@ def _host_loop(trainer: Trainer, iteration, state, num_seeds: Optional[int], eva
     return state, metrics
 
 
-def make_evaluation(env, trainer: Trainer, episode_length: int, seed: int) -> Callable[[TrainingState, int], dict]:
+def make_evaluation(env, trainer: Trainer, episode_length: int, seed: int,
+                    mesh=None) -> Callable[[TrainingState, int], dict]:
     """``evaluate(state, iteration) -> {"eval/new_skill_success", ...}`` (host floats): the new skill
     alone and (SkillS) the scheduler alone over ``config.eval_episodes`` episodes. The keys derive
     from (seed, iteration), not from the loop's history: a resumed run draws the same evaluation
-    episodes as an uninterrupted one."""
-    eval_new, eval_sched = make_evaluators(env, trainer, trainer.config.eval_episodes, episode_length)
+    episodes as an uninterrupted one. ``mesh``: the evaluations run replicated on its devices (every
+    process of a multi-process run evaluates the same episodes)."""
+    eval_new, eval_sched = make_evaluators(env, trainer, trainer.config.eval_episodes, episode_length, mesh)
     base_key = jax.random.PRNGKey(seed + 10_000)
+    place = (lambda k: k) if mesh is None else (lambda k: sharding.put(k, sharding.replicated(mesh)))  # noqa: E731
 
     def evaluate(state: TrainingState, iteration: int) -> dict:
-        k1, k2 = jax.random.split(jax.random.fold_in(base_key, iteration))
+        k1, k2 = map(place, jax.random.split(jax.random.fold_in(base_key, iteration)))
         ev = eval_new(state.new_skill.policy_params, state.normalizer, k1)
-        out = {"eval/new_skill_success": float(jnp.mean(ev["success"])),
-               "eval/new_skill_return": float(jnp.mean(ev["return"]))}
+        # (device_get first: a multi-process run's arrays are global, this process reads its replica.)
+        mean = lambda x: float(jnp.mean(jax.device_get(x)))  # noqa: E731
+        out = {"eval/new_skill_success": mean(ev["success"]), "eval/new_skill_return": mean(ev["return"])}
         if trainer.config.method in ("skills", "rhpo"):  # the scheduler acting (rhpo: the whole mixture)
             ev = eval_sched(state.scheduler.policy_params, state.new_skill.policy_params, state.normalizer, k2)
-            out["eval/scheduler_success"] = float(jnp.mean(ev["success"]))
-            out["eval/scheduler_return"] = float(jnp.mean(ev["return"]))
+            out["eval/scheduler_success"] = mean(ev["success"])
+            out["eval/scheduler_return"] = mean(ev["return"])
         return out
 
     return evaluate

@@ -56,13 +56,24 @@ def abstract_training_state(environment, skills, config, seed: int):
     return abstract, lambda: jax.jit(lambda k: trainer.init(k).replay)(key)
 
 
-def _like_fresh(tree, abstract):
+def _like_fresh(tree, abstract, shardings=None):
     """Restored arrays as a fresh run holds them: uncommitted, with the abstract state's weak
     types (flashbax's write index is a weak int32). Either difference would make jit compile a
-    different program for the same iteration (and miss the compilation cache)."""
+    different program for the same iteration (and miss the compilation cache). ``shardings``: the
+    arrays were restored onto a mesh (possibly across processes); they stay there, weak types fixed."""
     import jax
     import jax.numpy as jnp
     import numpy as np
+
+    if shardings is not None:
+        from jax._src.lax.lax import _convert_element_type  # no public API makes weak types
+
+        def on_mesh(x, spec, sh):
+            if not getattr(spec, "weak_type", False):
+                return x
+            return jax.jit(lambda a: _convert_element_type(a, spec.dtype, weak_type=True), out_shardings=sh)(x)
+
+        return jax.tree.map(on_mesh, tree, abstract, shardings)
 
     def one(x, spec):
         a = np.asarray(x)
@@ -163,12 +174,21 @@ class Checkpointer:
         mgr.save(int(host["iteration"]), args=ocp.args.Composite(**items))
         mgr.wait_until_finished()
 
-    def restore(self, abstract_state, fresh_replay: Optional[Callable] = None, step: Optional[int] = None):
+    def restore(self, abstract_state, fresh_replay: Optional[Callable] = None, step: Optional[int] = None,
+                shardings=None):
         """``(TrainingState, host_state)`` of checkpoint ``step`` (default: the latest).
 
         ``abstract_state``: the run's state structure (``abstract_training_state``).
-        ``fresh_replay()``: the empty buffer to start from when the checkpoint holds no replay."""
+        ``fresh_replay()``: the empty buffer to start from when the checkpoint holds no replay.
+        ``shardings``: a TrainingState of shardings (``parallel_skills.sharding.state_shardings``):
+        each process reads its shards straight onto the run's mesh (multi-device / multi-process)."""
+        import jax
         import orbax.checkpoint as ocp
+
+        def target(tree, sh):
+            if shardings is None:
+                return tree
+            return jax.tree.map(lambda a, s: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=s), tree, sh)
 
         step = self.latest_step() if step is None else int(step)
         if step is None:
@@ -176,9 +196,11 @@ class Checkpointer:
         mgr = self._mgr()
         try:
             host = mgr.restore(step, args=ocp.args.Composite(host=ocp.args.JsonRestore())).host
-            items = {"state": ocp.args.StandardRestore(_state_tree(abstract_state))}
+            state_sh = _state_tree(shardings) if shardings is not None else None
+            items = {"state": ocp.args.StandardRestore(target(_state_tree(abstract_state), state_sh))}
             if host.get("replay_saved", True):
-                items["replay"] = ocp.args.StandardRestore(abstract_state.replay)
+                items["replay"] = ocp.args.StandardRestore(
+                    target(abstract_state.replay, None if shardings is None else shardings.replay))
             for name, item in items.items():
                 why = _mismatch(os.path.join(self.directory, str(step), name), item.item)
                 if why:
@@ -191,16 +213,17 @@ class Checkpointer:
             first = str(e).strip().splitlines()[0] if str(e).strip() else ""
             raise CheckpointError(f"checkpoint {os.path.join(self.directory, str(step))} does not match this "
                                   f"run's training state ({type(e).__name__}: {first[:200]})") from None
-        fields = _like_fresh(restored.state, _state_tree(abstract_state))
+        fields = _like_fresh(restored.state, _state_tree(abstract_state), state_sh if shardings is not None else None)
         state = abstract_state.replace(**fields)
         if host.get("replay_saved", True):
-            replay = _like_fresh(restored.replay, abstract_state.replay)
+            replay = _like_fresh(restored.replay, abstract_state.replay,
+                                 None if shardings is None else shardings.replay)
         elif fresh_replay is not None:
             replay = fresh_replay()
         else:
             raise CheckpointError(f"checkpoint {step} holds no replay buffer; pass fresh_replay to start an empty one")
         state = state.replace(replay=replay)
-        if int(state.iteration) != step:
+        if int(jax.device_get(state.iteration)) != step:
             raise CheckpointError(f"checkpoint {step} holds the state of iteration {int(state.iteration)}")
         return state, host
 

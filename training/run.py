@@ -104,6 +104,17 @@ def build_parser():
     p.add_argument("--video", action="store_true",
                    help="at the end, write DIR/new_skill.mp4 (or .gif without ffmpeg): one episode of the new skill "
                         "alone, rendered headless (MUJOCO_GL=egl, else osmesa)")
+    p.add_argument("--coordinator", default=None,
+                   help="HOST:PORT of process 0: a multi-process run over several hosts (jax.distributed), with "
+                        "--num_processes and --process_id; every process runs the same command with the same --out "
+                        "(a shared directory), process 0 alone writes its logs, metrics and exports (README \"Devices\")")
+    p.add_argument("--num_processes", type=positive_int, default=None, help="processes of a multi-process run")
+    p.add_argument("--process_id", type=nonnegative_int, default=None, help="this process: 0 .. num_processes - 1")
+    p.add_argument("--distributed", action="store_true",
+                   help="a multi-process run whose coordinator, process count and id JAX reads from the cluster's "
+                        "environment (SLURM, Open MPI, ...)")
+    p.add_argument("--coordinator_timeout", type=positive_int, default=300,
+                   help="seconds to wait for every process to reach the coordinator (default 300)")
     p.add_argument("--no-replay-checkpoint", dest="no_replay_checkpoint", action="store_true",
                    help="leave the replay buffer out of checkpoints (smaller; a resume then starts with an "
                         "empty buffer and is no longer identical to an uninterrupted run)")
@@ -162,8 +173,9 @@ def _check_writable(out):
     check_writable(out, "the run directory")
 
 
-def prepare_new(args, argv):
-    """Validate everything, then create the run directory and its config.json."""
+def prepare_new(args, argv, num_devices: int = 1, write: bool = True):
+    """Validate everything, then create the run directory and its config.json (``write`` False: a
+    non-primary process of a multi-process run, which validates alike and writes nothing)."""
     import tasks
     from training import skill_library
 
@@ -204,10 +216,11 @@ def prepare_new(args, argv):
         names = skill_library.skill_names(a["task"], a["skills"])
 
     out = args.out or os.path.join("runs", f"{a['task']}-{method}-s{a['seed']}-{time.strftime('%Y%m%d-%H%M%S')}")
-    if os.path.exists(out):
+    if write and os.path.exists(out):
         raise UsageError(f"run directory {out} already exists; choose a new --out, or --resume it "
                          "(runs are never overwritten)")
-    _check_writable(out)
+    if write:
+        _check_writable(out)
 
     import jax
 
@@ -224,6 +237,7 @@ def prepare_new(args, argv):
     else:
         eval_every = max(1, round(num_timesteps / (resolved.num_envs * resolved.unroll_length) / 20))
     resolved = dataclasses.replace(resolved, eval_every=eval_every)
+    _check_mesh(resolved, num_devices)
     overrides = {} if args.episode_length is None else {"episode_length": args.episode_length}
     env = tasks.make(a["task"], physics=a["physics"], **overrides)  # validates the overrides
     skill_dir = os.path.abspath(args.skill_dir) if args.skill_dir else None
@@ -241,11 +255,21 @@ def prepare_new(args, argv):
         checkpoint_every=args.checkpoint_every, replay_checkpoint=not args.no_replay_checkpoint,
         video=bool(args.video), train_config=dataclasses.asdict(resolved), auto=notes,
         learners=learner_schedule(resolved))
-    rundir.create(out, run)
+    if write:
+        rundir.create(out, run)
     return out, run, resolved, env
 
 
-def prepare_resume(args):
+def _check_mesh(resolved, num_devices: int):
+    from parallel_skills.sharding import check_divisible
+
+    try:
+        check_divisible(resolved, num_devices)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+
+
+def prepare_resume(args, num_devices: int = 1):
     """Validate a --resume: the run exists, its config.json fixes the config (conflicting flags
     are rejected) and it holds a checkpoint. Writes nothing."""
     import tasks
@@ -310,6 +334,7 @@ def prepare_resume(args):
     if ckpt.latest_step() is None:
         raise UsageError(f"cannot resume: {out} holds no checkpoint (nothing in {ckpt.directory}); "
                          "start the run again with a new --out")
+    _check_mesh(resolved, num_devices)
     env = tasks.make(run.task, physics=run.physics, **run.env_overrides())
     return out, dataclasses.replace(run, num_timesteps=target), resolved, env
 
@@ -365,7 +390,7 @@ def _parse_seeds(text: str) -> list:
     return seeds
 
 
-def prepare_seeds(args, argv):
+def prepare_seeds(args, argv, num_devices: int = 1):
     """A new ``--seeds`` group: validated like one run, then one run directory per seed in OUT and
     OUT/seeds.json. Returns ([out], [run], resolved, env)."""
     import argparse
@@ -379,14 +404,14 @@ def prepare_seeds(args, argv):
         raise UsageError(f"run directory {out} already exists; choose a new --out, or --resume it "
                          "(runs are never overwritten)")
     _check_writable(out)
-    prepared = [prepare_new(argparse.Namespace(**dict(vars(args), seed=s, out=os.path.join(out, f"s{s}"))), argv)
-                for s in seeds]
+    prepared = [prepare_new(argparse.Namespace(**dict(vars(args), seed=s, out=os.path.join(out, f"s{s}"))), argv,
+                            num_devices) for s in seeds]
     with open(os.path.join(out, SEEDS_JSON), "w") as f:
         json.dump({"seeds": seeds, "runs": [f"s{s}" for s in seeds], "command": _command(argv)}, f, indent=2)
     return [p[0] for p in prepared], [p[1] for p in prepared], prepared[0][2], prepared[0][3]
 
 
-def resume_seeds(args):
+def resume_seeds(args, num_devices: int = 1):
     """``--resume --out OUT`` of a ``--seeds`` group: each run validated as a single resume."""
     import argparse
 
@@ -397,7 +422,8 @@ def resume_seeds(args):
             names = list(json.load(f)["runs"])
     except (OSError, ValueError, KeyError, TypeError):
         raise UsageError(f"cannot resume: {os.path.join(args.out, SEEDS_JSON)} is unreadable") from None
-    prepared = [prepare_resume(argparse.Namespace(**dict(vars(args), out=os.path.join(args.out, n)))) for n in names]
+    prepared = [prepare_resume(argparse.Namespace(**dict(vars(args), out=os.path.join(args.out, n))), num_devices)
+                for n in names]
     resolved = prepared[0][2]
     if any(p[2] != resolved for p in prepared) or len({p[1].num_timesteps for p in prepared}) != 1:
         raise UsageError(f"cannot resume {args.out} together: its runs no longer share one config and budget "
@@ -405,24 +431,65 @@ def resume_seeds(args):
     return [p[0] for p in prepared], [p[1] for p in prepared], resolved, prepared[0][3]
 
 
+def connect(args):
+    """``(Distributed, mesh)``: this process joined to the others of a multi-process run
+    (``jax.distributed``, before any device is used) and the mesh over every global device (None
+    with one device: the single-device program). Bad inputs raise UsageError (one line)."""
+    from parallel_skills import sharding
+
+    multi = args.coordinator is not None or args.distributed or args.num_processes is not None \
+        or args.process_id is not None
+    if multi and args.seeds is not None:
+        raise UsageError("--seeds trains in one process: drop --coordinator / --distributed (a multi-process run "
+                         "trains one seed)")
+    if multi and args.out is None:
+        raise UsageError("a multi-process run needs --out DIR, the same directory (on a shared file system) in "
+                         "every process")
+    try:
+        dist = sharding.initialize(args.coordinator, args.num_processes, args.process_id, args.coordinator_timeout,
+                                   auto=args.distributed)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    import jax
+
+    mesh = sharding.make_mesh() if jax.device_count() > 1 else None
+    return dist, mesh
+
+
+def _barrier(dist, name: str):
+    """Every process of a multi-process run waits here for the others (no-op with one)."""
+    if dist.num_processes > 1:
+        from jax.experimental import multihost_utils
+
+        multihost_utils.sync_global_devices(f"parallel_skills: {name}")
+
+
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
+    dist, mesh = main_guard(lambda: connect(args))
     enable_compilation_cache()
     if args.seeds is not None or (args.resume and args.out and os.path.isfile(os.path.join(args.out, SEEDS_JSON))):
-        return _main_seeds(args, argv)
-    out, run, resolved, env = main_guard(lambda: prepare_resume(args) if args.resume else prepare_new(args, argv))
-    main_guard(lambda: rundir.lock(out))
+        return _main_seeds(args, argv, mesh)
+    devices = 1 if mesh is None else mesh.size
+    out, run, resolved, env = main_guard(
+        lambda: prepare_resume(args, devices) if args.resume else prepare_new(args, argv, devices, write=dist.primary))
+    if dist.primary:
+        main_guard(lambda: rundir.lock(out))
     try:
-        if args.resume:
+        if args.resume and dist.primary:
             rundir.extend(out, run, _command(argv))
-        _train(out, run, resolved, env, resume=args.resume, video=args.video or run.video)
+        _barrier(dist, "run directory ready")  # (process 0 created or extended it)
+        _train(out, run, resolved, env, resume=args.resume, video=args.video or run.video, mesh=mesh, dist=dist)
     finally:
-        rundir.unlock(out)
+        if dist.primary:
+            rundir.unlock(out)
 
 
-def _main_seeds(args, argv):
-    outs, runs, resolved, env = main_guard(lambda: resume_seeds(args) if args.resume else prepare_seeds(args, argv))
+def _main_seeds(args, argv, mesh=None):
+    devices = 1 if mesh is None else mesh.size
+    outs, runs, resolved, env = main_guard(lambda: resume_seeds(args, devices) if args.resume
+                                           else prepare_seeds(args, argv, devices))
     locked = []
     try:
         for out in outs:
@@ -431,7 +498,7 @@ def _main_seeds(args, argv):
         if args.resume:
             for out, run in zip(outs, runs):
                 rundir.extend(out, run, _command(argv))
-        _train_seeds(outs, runs, resolved, env, resume=args.resume, video=args.video or runs[0].video)
+        _train_seeds(outs, runs, resolved, env, resume=args.resume, video=args.video or runs[0].video, mesh=mesh)
     finally:
         for out in locked:
             rundir.unlock(out)
@@ -457,19 +524,27 @@ def skill_sources(skills, physics: str) -> list[dict]:
     return out
 
 
-def _restore(out, ckpt, csv_path, env, skills, resolved, seed: int, step=None):
+def _restore(out, ckpt, csv_path, env, skills, resolved, seed: int, step=None, mesh=None, primary: bool = True):
     """The checkpointed (state, host state) of a resumed run (checkpoint ``step``, default the
     latest); metrics.csv is cut back to the rows the checkpoint covers and a half-written export is
-    removed."""
+    removed (by the primary process alone). ``mesh``: the state is restored onto it, each process
+    reading its own shards."""
     from training.checkpointing import CheckpointError, abstract_training_state
 
     abstract, fresh_replay = abstract_training_state(env, skills, resolved, seed)
+    shardings = None
+    if mesh is not None:
+        from parallel_skills.sharding import state_shardings
+
+        shardings = state_shardings(abstract, mesh, resolved.num_envs)
     try:
-        state, host = ckpt.restore(abstract, fresh_replay, step=step)
+        state, host = ckpt.restore(abstract, fresh_replay, step=step, shardings=shardings)
     except CheckpointError as e:
         raise UsageError(f"cannot resume: {e}") from None
     if not all(k in host for k in ("csv_bytes", "csv_rows", "env_steps")):
         raise UsageError(f"cannot resume: the checkpoint in {ckpt.directory} was not written by training.run")
+    if not primary:
+        return state, host
     size = os.path.getsize(csv_path) if os.path.isfile(csv_path) else -1
     if size < int(host["csv_bytes"]):
         raise UsageError(f"cannot resume: {csv_path} is {'missing' if size < 0 else f'{size} bytes'}, "
@@ -490,14 +565,17 @@ class _RunFiles:
     """One run directory's files while it trains: metrics.csv rows, TensorBoard events and
     checkpoints (``progress`` and ``checkpoint`` are what ``train`` calls back)."""
 
-    def __init__(self, out, run, resolved, resume: bool, host_state, bar, prefix: str = ""):
+    def __init__(self, out, run, resolved, resume: bool, host_state, bar, prefix: str = "", primary: bool = True):
         from training.checkpointing import Checkpointer
 
-        self.out, self.bar, self.prefix = out, bar, prefix
+        self.out, self.bar, self.prefix, self.primary = out, bar, prefix, primary
         self.ckpt = Checkpointer(out, save_replay=run.replay_checkpoint)
         csv_path = os.path.join(out, "metrics.csv")
         start_steps = int(host_state["env_steps"]) if host_state else 0
         self.csv_rows = int(host_state["csv_rows"]) if host_state else 0
+        self.f = self.tb = None
+        if not primary:  # another process of a multi-process run: checkpoints only (orbax writes them together)
+            return
         # A resumed run keeps the columns its metrics.csv was started with (runs from older versions).
         header = _csv_header(csv_path) if resume else None
         self.fields = header or CSV_FIELDS
@@ -515,6 +593,8 @@ class _RunFiles:
         self.f.flush()
 
     def progress(self, steps, m):
+        if not self.primary:
+            return
         m = dict(m, rss_mb=resident_mb())
         self._write_row(format_row(m, self.fields))
         self.csv_rows += 1
@@ -522,12 +602,16 @@ class _RunFiles:
         self.bar.update(steps, m, self.prefix)
 
     def checkpoint(self, state, host):
+        if not self.primary:  # (orbax writes the host JSON from the primary process only)
+            self.ckpt.save(state, dict(host, csv_bytes=0, csv_rows=0))
+            return
         os.fsync(self.f.fileno())  # the rows this checkpoint covers are on disk first
         self.ckpt.save(state, dict(host, csv_bytes=self.f.tell(), csv_rows=self.csv_rows))
 
     def close(self):
-        self.f.close()
-        self.tb.close()
+        if self.f is not None:
+            self.f.close()
+            self.tb.close()
         self.ckpt.close()
 
 
@@ -539,43 +623,68 @@ def _load_skills(run, env):
                                                         skill_dir=run.skill_dir))
 
 
-def _announce(run, resolved, resume: bool, outs):
+def _announce(run, resolved, resume: bool, outs, mesh=None, dist=None):
     from parallel_skills.config import describe_schedule, learner_schedule
 
     if not resume:
         for out in outs:
             print(f"run dir: {out}")
     print(f"task={run.task} physics={run.physics} method={resolved.method} skills={list(run.skills) or '(none)'}")
+    if mesh is not None:
+        procs = f" in {dist.num_processes} processes" if dist is not None and dist.num_processes > 1 else ""
+        print(f"devices: {mesh.size}{procs}, each {resolved.num_envs // mesh.size} envs and 1/{mesh.size} of every "
+              "learner batch (parameters and replay replicated)")
     if run.auto and not resume:  # (train() gets the resolved config: it has nothing to choose)
         print("defaults chosen automatically: " + ", ".join(run.auto))
     print(describe_schedule(learner_schedule(resolved)))
 
 
-def _train(out, run, resolved, env, resume: bool, video: bool = False):
+def _train(out, run, resolved, env, resume: bool, video: bool = False, mesh=None, dist=None):
     from parallel_skills import train
+    from parallel_skills.sharding import Distributed
     from training.checkpointing import Checkpointer
 
+    dist = dist or Distributed()
     skills = _load_skills(run, env)
     seed, num_timesteps = int(run.seed), int(run.num_timesteps)
     initial_state = host_state = None
     if resume:
         initial_state, host_state = main_guard(lambda: _restore(
             out, Checkpointer(out, save_replay=run.replay_checkpoint), os.path.join(out, "metrics.csv"), env, skills,
-            resolved, seed))
-    _announce(run, resolved, resume, [out])
+            resolved, seed, mesh=mesh, primary=dist.primary))
+    if dist.primary:
+        _announce(run, resolved, resume, [out], mesh, dist)
     t0 = time.perf_counter()
-    bar = Progress(num_timesteps, int(host_state["env_steps"]) if host_state else 0)
-    files = _RunFiles(out, run, resolved, resume, host_state, bar)
+    bar = Progress(num_timesteps, int(host_state["env_steps"]) if host_state else 0,
+                   **({} if dist.primary else {"out": io.StringIO(), "tty": False}))
+    files = _RunFiles(out, run, resolved, resume, host_state, bar, primary=dist.primary)
     try:
         make_policy, params, metrics = train(
             env, skills, num_timesteps=num_timesteps, seed=seed, config=resolved, progress_fn=files.progress,
             initial_state=initial_state, host_state=host_state, checkpoint_fn=files.checkpoint,
             checkpoint_every=run.checkpoint_every, checkpoint_min_seconds=CHECKPOINT_MIN_SECONDS,
-            step_fn=bar.advance, auto_config=False)
+            step_fn=bar.advance, auto_config=False, mesh=mesh)
     finally:
         bar.close()
         files.close()
-    _write_outputs(out, run, resolved, env, skills, make_policy, params, metrics, video, time.perf_counter() - t0)
+    if dist.num_processes > 1:  # (each process's replicas: equal when the processes trained together)
+        print(f"process {dist.process_id} of {dist.num_processes}: parameters sha256 {params_digest(params)}")
+    if dist.primary:
+        _write_outputs(out, run, resolved, env, skills, make_policy, params, metrics, video,
+                       time.perf_counter() - t0)
+
+
+def params_digest(params) -> str:
+    """sha256 of the trained parameters (this process's copy of every replicated array)."""
+    import hashlib
+
+    import jax
+    import numpy as np
+
+    h = hashlib.sha256()
+    for leaf in jax.tree.leaves(jax.device_get(params)):
+        h.update(np.ascontiguousarray(leaf).tobytes())
+    return h.hexdigest()[:16]
 
 
 def _common_step(ckpts, outs) -> int:
@@ -588,7 +697,7 @@ def _common_step(ckpts, outs) -> int:
     return max(common)
 
 
-def _train_seeds(outs, runs, resolved, env, resume: bool, video: bool = False):
+def _train_seeds(outs, runs, resolved, env, resume: bool, video: bool = False, mesh=None):
     """The runs of ``--seeds`` (same config, one seed each) in one vmapped training
     (``parallel_skills.train.train_seeds``); each writes its own run directory as a single run would."""
     from parallel_skills.train import train_seeds
@@ -602,10 +711,10 @@ def _train_seeds(outs, runs, resolved, env, resume: bool, video: bool = False):
         ckpts = [Checkpointer(out, save_replay=r.replay_checkpoint) for out, r in zip(outs, runs)]
         step = main_guard(lambda: _common_step(ckpts, outs))
         restored = [main_guard(lambda o=out, c=c, r=r: _restore(o, c, os.path.join(o, "metrics.csv"), env, skills,
-                                                                 resolved, int(r.seed), step=step))
+                                                                 resolved, int(r.seed), step=step, mesh=mesh))
                     for out, c, r in zip(outs, ckpts, runs)]
         initial_states, host_states = [x[0] for x in restored], [x[1] for x in restored]
-    _announce(run, resolved, resume, outs)
+    _announce(run, resolved, resume, outs, mesh)
     t0 = time.perf_counter()
     bar = Progress(int(run.num_timesteps), int(host_states[0]["env_steps"]) if host_states else 0)
     files = [_RunFiles(out, r, resolved, resume, host_states[i] if host_states else None, bar, f"s{r.seed} ")
@@ -615,7 +724,7 @@ def _train_seeds(outs, runs, resolved, env, resume: bool, video: bool = False):
             env, skills, seeds=seeds, num_timesteps=int(run.num_timesteps), config=resolved,
             progress_fns=[f.progress for f in files], initial_states=initial_states, host_states=host_states,
             checkpoint_fns=[f.checkpoint for f in files], checkpoint_every=run.checkpoint_every,
-            checkpoint_min_seconds=CHECKPOINT_MIN_SECONDS, step_fn=bar.advance, auto_config=False)
+            checkpoint_min_seconds=CHECKPOINT_MIN_SECONDS, step_fn=bar.advance, auto_config=False, mesh=mesh)
     finally:
         bar.close()
         for f in files:
