@@ -84,3 +84,29 @@ def test_bad_arguments(tmp_path, capsys):
             paper.main(argv + ["--out", str(tmp_path / "m")])
         assert e.value.code == 2 and msg in capsys.readouterr().err
     assert not os.path.exists(tmp_path / "m")  # nothing written on bad input
+
+
+def test_plots_each_method_at_its_best_setting_and_the_ablations(tmp_path, capsys):
+    out = str(tmp_path)
+    curves = {"skills": (0.5, 0.9), "scratch": (0.0, 0.1), "scratch-mpo_alpha=0": (0.2, 0.3),
+              "scratch-mpo_alpha=0.5": (0.0, 0.3), "k1": (0.0, 0.2)}
+    for name, (mid, final) in curves.items():
+        for seed in ((0, 1) if name in ("skills", "scratch") else (0,)):
+            _metrics(os.path.join(out, "lift", name, f"s{seed}"), [(200, 5.0, mid, 1.0), (400, 10.0, final, 2.0)])
+    variants = [parse_variant(x, ("skills", "scratch")) for x in
+                ("skills", "scratch", "scratch[new_skill.mpo_alpha=0]", "scratch[new_skill.mpo_alpha=0.5]", "k1")]
+    scores = {v.name: paper._score(paper._variant_runs(out, "lift", v, [0, 1])[1], 400) for v in variants}
+    best = paper.best_settings(variants, scores)
+    # Ties at the budget (0.3) go to the better curve; ablations are never a method's best setting.
+    assert {m: v.name for m, v in best.items()} == {"skills": "skills", "scratch": "scratch-mpo_alpha=0"}
+    paths = paper.write_results(out, ["lift"], variants, [0, 1], {"lift": 400})
+    assert {os.path.basename(p) for p in paths} == {"lift_new_skill.png", "lift_ablations.png", "results.md"}
+    table = open(os.path.join(out, "results.md")).read()
+    assert "scratch: scratch-mpo_alpha=0" in table and "| scratch-mpo_alpha=0.5 |" in table
+    # --report_only: the same files from the runs on disk, nothing trained, nothing moved aside.
+    os.remove(os.path.join(out, "results.md"))
+    paper.main(["--tasks", "lift", "--methods", "skills;scratch;scratch[new_skill.mpo_alpha=0];k1", "--seeds", "0,1",
+                "--budgets", "lift=400", "--out", out, "--report_only"])
+    printed = capsys.readouterr().out
+    assert "started" not in printed and os.path.isfile(os.path.join(out, "results.md"))
+    assert sorted(os.listdir(os.path.join(out, "lift", "k1"))) == ["s0"]

@@ -11,10 +11,14 @@ named ablation of SkillS (``ABLATIONS``: k1, fixed100, no_augmentation, new_skil
 no_new_skill_choice).
 
 Layout: ``OUT/<task>/<variant>/s<seed>/`` (a ``training.run`` directory, its log next to it as
-``s<seed>.log``), ``OUT/<task>_new_skill.png`` (new skill alone, mean ± 1 std over seeds per
-variant), ``OUT/results.md`` (success at fixed fractions of the budget, wall time per run and in
-total). ``--budgets task=N,...`` sets env steps per task (``BUDGETS`` otherwise). ``--jobs J``
-runs J trainings at once, each pinned to its own CPU core. ``--dry_run`` prints the plan only.
+``s<seed>.log``), ``OUT/<task>_new_skill.png`` (new skill alone, mean ± 1 std over seeds, each
+method at its best setting among the variants run, as the paper reports its baselines),
+``OUT/<task>_ablations.png`` (SkillS and its ablations, when any ran), ``OUT/results.md`` (every
+variant: success at fixed fractions of the budget, wall time per run and in total).
+``--budgets task=N,...`` sets env steps per task (``BUDGETS`` otherwise). ``--jobs J`` runs J
+trainings at once, each pinned to its own CPU core. ``--dry_run`` prints the plan only;
+``--report_only`` writes the plots and table from the runs on disk (of ``--seeds``) and trains
+nothing (e.g. sweep settings run on fewer seeds than the defaults).
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ ABLATIONS = {
     "no_new_skill_choice": ("skills", {"scheduler": {"new_skill_choice": False}}),  # Fig. 6a
 }
 FRACTIONS = (0.25, 0.5, 1.0)  # of the budget, for the table
+KEY = "eval/new_skill_success"  # what the table and the choice of a method's best setting read
 _VARIANT = re.compile(r"^(?P<name>[a-z0-9_]+)(\[(?P<settings>[^\]]*)\])?$")
 
 
@@ -150,11 +155,54 @@ def success_at(rows: list, steps: float, key: str = "eval/new_skill_success") ->
     return before[-1][key] if before else None
 
 
-def write_results(out: str, tasks: list, variants: list, seeds: list, budgets: dict) -> list:
-    """OUT/<task>_new_skill.png per task and OUT/results.md; returns the files written."""
+def _variant_runs(out: str, task: str, variant: Variant, seeds: list):
+    """(run dirs, their metrics rows) of the variant's seeds that have evaluations."""
+    from training.logging_utils import read_metrics
+
+    dirs = [os.path.join(out, task, variant.name, f"s{s}") for s in seeds]
+    dirs = [d for d in dirs if os.path.isfile(os.path.join(d, "metrics.csv"))]
+    pairs = [(d, [r for r in read_metrics(os.path.join(d, "metrics.csv")) if isinstance(r.get("env_steps"), float)])
+             for d in dirs]
+    pairs = [(d, r) for d, r in pairs if r]
+    return [d for d, _ in pairs], [r for _, r in pairs]
+
+
+def _score(rows: list, budget: int):
+    """A variant's success at the budget, mean over its seeds (their last evaluation at or before
+    it), then its mean success over all evaluations (ties: the faster learner)."""
     import numpy as np
 
-    from training.logging_utils import read_metrics
+    final = [success_at(r, budget, KEY) for r in rows]
+    final = [x for x in final if x is not None]
+    curve = [np.mean([x[KEY] for x in r if isinstance(x.get(KEY), float)] or [0.0]) for r in rows]
+    return (float(np.mean(final)) if final else 0.0, float(np.mean(curve)) if curve else 0.0)
+
+
+def best_settings(variants: list, scores: dict) -> dict:
+    """{method: its best variant} over the non-ablation variants with runs (``scores``: name ->
+    ``_score``): the paper reports each baseline at its best sweep setting. Ties keep the order
+    the variants were given in."""
+    best = {}
+    for v in variants:
+        if v.name in ABLATIONS or v.name not in scores:
+            continue
+        if v.method not in best or scores[v.name] > scores[best[v.method].name]:
+            best[v.method] = v
+    return best
+
+
+def _label(v: Variant, runs: int) -> str:
+    settings = v.name[len(v.method) + 1:] if v.name != v.method else ""
+    return f"{v.method}" + (f" ({settings.replace('-', ', ')})" if settings else "") + \
+        (f", {runs} seeds" if runs > 1 else ", 1 seed")
+
+
+def write_results(out: str, tasks: list, variants: list, seeds: list, budgets: dict) -> list:
+    """Per task: OUT/<task>_new_skill.png (each method at its best setting, ``best_settings``),
+    OUT/<task>_ablations.png when ablations ran (SkillS and its ablations); OUT/results.md (every
+    variant). Returns the files written."""
+    import numpy as np
+
     from training.plot import Run, plot_curves
 
     lines = ["# Experiment matrix: the new skill alone (success over the evaluation episodes)", "",
@@ -166,16 +214,14 @@ def write_results(out: str, tasks: list, variants: list, seeds: list, budgets: d
         lines += [f"## {task} (budget {budget:,} env steps)", "",
                   "| variant | " + " | ".join(header) + " | seeds | wall time per run (min) |",
                   "| --- | " + " | ".join("---" for _ in header) + " | --- | --- |"]
-        groups = []
+        found, scores = {}, {}
         for v in variants:
-            dirs = [os.path.join(out, task, v.name, f"s{s}") for s in seeds]
-            dirs = [d for d in dirs if os.path.isfile(os.path.join(d, "metrics.csv"))]
-            rows = [[r for r in read_metrics(os.path.join(d, "metrics.csv")) if isinstance(r.get("env_steps"), float)]
-                    for d in dirs]
-            rows = [r for r in rows if r]
+            dirs, rows = _variant_runs(out, task, v, seeds)
             if not rows:
                 lines.append(f"| {v.name} | " + " | ".join("–" for _ in header) + " | 0 | – |")
                 continue
+            found[v.name] = (dirs, rows)
+            scores[v.name] = _score(rows, budget)
             cells = []
             for f in FRACTIONS:
                 vals = [success_at(r, f * budget) for r in rows if r[-1]["env_steps"] >= f * budget]
@@ -185,11 +231,21 @@ def write_results(out: str, tasks: list, variants: list, seeds: list, budgets: d
             total_seconds += 60 * sum(walls)
             wall = f"{np.mean(walls):.1f}" if walls else "–"
             lines.append(f"| {v.name} | " + " | ".join(cells) + f" | {len(rows)} | {wall} |")
-            groups.append((f"{v.name}, {len(rows)} seeds" if len(rows) > 1 else v.name,
-                           [Run(d) for d, r in zip(dirs, rows)]))
         lines.append("")
-        if groups:
+        best = best_settings(variants, scores)
+        if best:
+            lines.append("Plotted (each method at its best setting: success at the budget, then over the run): "
+                         + "; ".join(f"{m}: {v.name}" for m, v in best.items()) + ".")
+            lines.append("")
+            groups = [(_label(v, len(found[v.name][0])), [Run(d) for d in found[v.name][0]]) for v in best.values()]
             written.append(plot_curves(groups, os.path.join(out, f"{task}_new_skill.png")))
+        ablations = [v for v in variants if v.name in ABLATIONS and v.name in found]
+        if ablations:
+            base = [v for v in variants if v.name == "skills" and v.name in found]
+            groups = [(_label(v, len(found[v.name][0])) if v.name == "skills" else
+                       f"{v.name}, {len(found[v.name][0])} seed{'s' if len(found[v.name][0]) > 1 else ''}",
+                       [Run(d) for d in found[v.name][0]]) for v in base + ablations]
+            written.append(plot_curves(groups, os.path.join(out, f"{task}_ablations.png")))
     lines.append(f"Total training wall time of the runs above: {total_seconds / 3600:.2f} h (summed over runs; "
                  "runs in parallel overlap).")
     path = os.path.join(out, "results.md")
@@ -212,6 +268,8 @@ def main(argv=None):
     p.add_argument("--out", required=True)
     p.add_argument("--jobs", type=int, default=1, help="trainings at once, one core each")
     p.add_argument("--dry_run", action="store_true")
+    p.add_argument("--report_only", action="store_true",
+                   help="write the plots and results.md from the runs of --seeds on disk; train nothing")
     args = p.parse_args(argv)
 
     def plan():
@@ -253,7 +311,7 @@ def main(argv=None):
     for task in task_list:
         for v in variants:
             config_path = None
-            if v.config and not args.dry_run:
+            if v.config and not (args.dry_run or args.report_only):
                 os.makedirs(os.path.join(args.out, "configs"), exist_ok=True)
                 config_path = os.path.abspath(os.path.join(args.out, "configs", f"{v.name}.json"))
                 with open(config_path, "w") as f:
@@ -262,7 +320,7 @@ def main(argv=None):
                 run_dir = os.path.join(args.out, task, v.name, f"s{seed}")
                 status = run_status(run_dir, budgets[task])
                 print(f"{task:<13} {v.name:<40} s{seed}: {status}")
-                if status == "done" or args.dry_run:
+                if status == "done" or args.dry_run or args.report_only:
                     continue
                 if status == "restart":  # cut before any checkpoint: keep it aside, start again
                     aside = f"{run_dir}.cut-{time.strftime('%Y%m%d-%H%M%S')}"
