@@ -3,6 +3,9 @@
 Every task of the manipulation domain (``tasks.names()``) exists for every physics backend:
 ``kinematic`` (pure JAX, no physics engine), ``mjx`` (MuJoCo MJX, impl jax), ``warp`` (MJX, impl
 warp) and ``mujoco`` (classic MuJoCo C engine called from JAX through ``pure_callback``).
+
+The OP3 locomotion tasks (``LOCOMOTION_TASKS``: ``getup_and_walk``, ``op3_getup``, ``op3_walk``;
+docs/locomotion.md) exist for ``mujoco`` and ``mjx`` and need the extra ``locomotion``.
 """
 
 from __future__ import annotations
@@ -10,15 +13,23 @@ from __future__ import annotations
 from tasks.manipulation import task_defs
 
 PHYSICS = ("kinematic", "mjx", "warp", "mujoco")
+LOCOMOTION_PHYSICS = ("mujoco", "mjx")
+LOCOMOTION_TASKS = ("getup_and_walk", "op3_getup", "op3_walk")
 
 
 def names() -> list[str]:
-    """Names of all tasks (sparse tasks and dense skill rewards)."""
-    return task_defs.names()
+    """Names of all tasks (sparse tasks and dense skill rewards), manipulation and locomotion."""
+    return sorted(task_defs.names() + list(LOCOMOTION_TASKS))
 
 
 def make(name: str, physics: str = "kinematic", **overrides):
     """Build task ``name`` on backend ``physics``. Overrides: ``episode_length`` and backend options."""
+    if name in LOCOMOTION_TASKS:
+        if physics not in LOCOMOTION_PHYSICS:
+            raise ValueError(f"locomotion task {name!r} runs on physics {' or '.join(LOCOMOTION_PHYSICS)}, not {physics!r}")
+        from tasks.locomotion.env import make_locomotion_env
+
+        return make_locomotion_env(name, physics=physics, **overrides)
     if name not in task_defs.TASKS:
         raise ValueError(f"unknown task {name!r}; valid tasks: {', '.join(names())}")
     if physics == "kinematic":

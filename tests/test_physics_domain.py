@@ -223,20 +223,6 @@ def test_callback_env_unbatched_and_nan_reset(mujoco_env):
 
 
 # --- MJX (impl jax / warp) ----------------------------------------------------------------------
-@pytest.fixture
-def one_core():
-    """MJX-jax can deadlock on this 2-core CPU unless pinned to one core (shared/STACK.md)."""
-    if not hasattr(os, "sched_setaffinity"):
-        yield
-        return
-    saved = os.sched_getaffinity(0)
-    os.sched_setaffinity(0, {min(saved)})
-    try:
-        yield
-    finally:
-        os.sched_setaffinity(0, saved)
-
-
 @pytest.mark.timeout(400)
 @pytest.mark.parametrize("impl", ["jax", "warp"])
 def test_mjx_sparse_tasks_reset_step_vmap(impl, one_core):
