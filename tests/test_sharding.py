@@ -1,5 +1,5 @@
 """Beyond one device (parallel_skills.sharding): the data-parallel iteration on 2 forced host devices
-matches the one-device run, a checkpoint taken on the mesh restores onto it, two processes on
+matches the one-device run, a checkpoint taken on the mesh restores onto it (and onto one device), two processes on
 loopback (jax.distributed, gloo) train together with process 0 alone writing the run directory,
 and bad mesh inputs are one line with exit code 2.
 
@@ -64,6 +64,8 @@ def test_two_devices_match_one_device_and_resume_on_the_mesh():
     # Saved on 2 devices, restored onto them: the continuation is the uninterrupted run, bit for bit.
     assert out["restored_actor_sharding"] == "P('data',)" and out["restored_on_mesh"], out
     assert out["resume_bitwise"] and out["resume_params_max_abs_diff"] == 0.0, out
+    # ... and restored onto one device (another mesh), it continues as the 2-device run does.
+    assert out["one_device_resume_metrics_max_abs_diff"] < TOLERANCE, out
 
 
 @pytest.mark.timeout(900)

@@ -88,6 +88,13 @@ def main():
         out["resume_bitwise"] = (first + resumed) == two
         out["resume_params_max_abs_diff"] = max_diff(jax.device_get(resumed_state.new_skill),
                                                      jax.device_get(two_state.new_skill))
+        # The same checkpoint restored onto one device (no shardings given) continues there.
+        ckpt = Checkpointer(tmp)
+        single, _ = ckpt.restore(abstract, fresh)
+        ckpt.close()
+        single_state, single_last = run(None, 1, state=single)
+        out["one_device_resume_metrics_max_abs_diff"] = max_diff(list(single_last[0].values()),
+                                                                 list(two[-1].values()))
     print(json.dumps(out))
 
 

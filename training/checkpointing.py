@@ -186,8 +186,11 @@ class Checkpointer:
         import orbax.checkpoint as ocp
 
         def target(tree, sh):
-            if shardings is None:
-                return tree
+            """The restore target: ``tree``'s shapes placed as ``sh`` says, or on this process's first
+            device (a checkpoint written on another mesh restores only onto an explicit placement)."""
+            if sh is None:
+                one = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+                return jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=one), tree)
             return jax.tree.map(lambda a, s: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=s), tree, sh)
 
         step = self.latest_step() if step is None else int(step)
