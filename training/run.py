@@ -477,10 +477,9 @@ def main(argv=None):
     if dist.primary:
         main_guard(lambda: rundir.lock(out))
     try:
-        if args.resume and dist.primary:
-            rundir.extend(out, run, _command(argv))
-        _barrier(dist, "run directory ready")  # (process 0 created or extended it)
-        _train(out, run, resolved, env, resume=args.resume, video=args.video or run.video, mesh=mesh, dist=dist)
+        _barrier(dist, "run directory ready")  # (process 0 created it)
+        _train(out, run, resolved, env, resume=args.resume, video=args.video or run.video, mesh=mesh, dist=dist,
+               extend_command=_command(argv) if args.resume else None)
     finally:
         if dist.primary:
             rundir.unlock(out)
@@ -495,10 +494,8 @@ def _main_seeds(args, argv, mesh=None):
         for out in outs:
             main_guard(lambda o=out: rundir.lock(o))
             locked.append(out)
-        if args.resume:
-            for out, run in zip(outs, runs):
-                rundir.extend(out, run, _command(argv))
-        _train_seeds(outs, runs, resolved, env, resume=args.resume, video=args.video or runs[0].video, mesh=mesh)
+        _train_seeds(outs, runs, resolved, env, resume=args.resume, video=args.video or runs[0].video, mesh=mesh,
+                     extend_command=_command(argv) if args.resume else None)
     finally:
         for out in locked:
             rundir.unlock(out)
@@ -526,9 +523,8 @@ def skill_sources(skills, physics: str) -> list[dict]:
 
 def _restore(out, ckpt, csv_path, env, skills, resolved, seed: int, step=None, mesh=None, primary: bool = True):
     """The checkpointed (state, host state) of a resumed run (checkpoint ``step``, default the
-    latest); metrics.csv is cut back to the rows the checkpoint covers and a half-written export is
-    removed (by the primary process alone). ``mesh``: the state is restored onto it, each process
-    reading its own shards."""
+    latest), read only (``_resume_files`` then updates the run directory, on the primary process
+    alone). ``mesh``: the state is restored onto it, each process reading its own shards."""
     from training.checkpointing import CheckpointError, abstract_training_state
 
     abstract, fresh_replay = abstract_training_state(env, skills, resolved, seed)
@@ -549,6 +545,16 @@ def _restore(out, ckpt, csv_path, env, skills, resolved, seed: int, step=None, m
     if size < int(host["csv_bytes"]):
         raise UsageError(f"cannot resume: {csv_path} is {'missing' if size < 0 else f'{size} bytes'}, "
                          f"the checkpoint covers its first {host['csv_bytes']} bytes")
+    return state, host
+
+
+def _resume_files(out, csv_path, host, run=None, extend_command=None):
+    """After a successful restore (nothing is written before one): record an extension
+    (``rundir.extend``: config.json, the finished outputs kept in before_extension_N) when
+    ``extend_command`` is given, then cut metrics.csv back to the rows the checkpoint covers and
+    remove a half-written export."""
+    if extend_command is not None:
+        rundir.extend(out, run, extend_command)
     with open(csv_path, "r+b") as f:  # drop the rows written after the checkpoint
         f.truncate(int(host["csv_bytes"]))
     stale = os.path.join(out, "export.npz")  # an export killed before its export.json: redone at the end
@@ -558,7 +564,6 @@ def _restore(out, ckpt, csv_path, env, skills, resolved, seed: int, step=None, m
           f"({host['env_steps']:,} env steps, {host['csv_rows']} metrics rows)"
           + ("" if host.get("replay_saved", True) else "; the checkpoint holds no replay: "
              "the buffer starts empty"))
-    return state, host
 
 
 class _RunFiles:
@@ -639,7 +644,7 @@ def _announce(run, resolved, resume: bool, outs, mesh=None, dist=None):
     print(describe_schedule(learner_schedule(resolved)))
 
 
-def _train(out, run, resolved, env, resume: bool, video: bool = False, mesh=None, dist=None):
+def _train(out, run, resolved, env, resume: bool, video: bool = False, mesh=None, dist=None, extend_command=None):
     from parallel_skills import train
     from parallel_skills.sharding import Distributed
     from training.checkpointing import Checkpointer
@@ -652,6 +657,8 @@ def _train(out, run, resolved, env, resume: bool, video: bool = False, mesh=None
         initial_state, host_state = main_guard(lambda: _restore(
             out, Checkpointer(out, save_replay=run.replay_checkpoint), os.path.join(out, "metrics.csv"), env, skills,
             resolved, seed, mesh=mesh, primary=dist.primary))
+        if dist.primary:
+            _resume_files(out, os.path.join(out, "metrics.csv"), host_state, run, extend_command)
     if dist.primary:
         _announce(run, resolved, resume, [out], mesh, dist)
     t0 = time.perf_counter()
@@ -697,7 +704,7 @@ def _common_step(ckpts, outs) -> int:
     return max(common)
 
 
-def _train_seeds(outs, runs, resolved, env, resume: bool, video: bool = False, mesh=None):
+def _train_seeds(outs, runs, resolved, env, resume: bool, video: bool = False, mesh=None, extend_command=None):
     """The runs of ``--seeds`` (same config, one seed each) in one vmapped training
     (``parallel_skills.train.train_seeds``); each writes its own run directory as a single run would."""
     from parallel_skills.train import train_seeds
@@ -713,6 +720,8 @@ def _train_seeds(outs, runs, resolved, env, resume: bool, video: bool = False, m
         restored = [main_guard(lambda o=out, c=c, r=r: _restore(o, c, os.path.join(o, "metrics.csv"), env, skills,
                                                                  resolved, int(r.seed), step=step, mesh=mesh))
                     for out, c, r in zip(outs, ckpts, runs)]
+        for out, r, (_, host) in zip(outs, runs, restored):  # (all restored: only now is anything written)
+            _resume_files(out, os.path.join(out, "metrics.csv"), host, r, extend_command)
         initial_states, host_states = [x[0] for x in restored], [x[1] for x in restored]
     _announce(run, resolved, resume, outs, mesh)
     t0 = time.perf_counter()
