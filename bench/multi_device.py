@@ -47,17 +47,18 @@ def worker(args) -> dict:
         state, _ = iteration(state)
     key = jax.random.PRNGKey(1)
     if mesh is None:
-        jit = jax.jit
+        def jit(fn, state_out=False):
+            return jax.jit(fn)
     else:
         shard = sharding.state_shardings(jax.eval_shape(lambda s: s, state), mesh, cfg.num_envs)
-        rep = sharding.replicated(mesh)
 
-        def jit(fn, out=None):
-            return jax.jit(fn, in_shardings=(shard,), out_shardings=out if out is not None else rep)
+        def jit(fn, state_out=False):
+            """Jitted on the mesh: the state in, a state (``state_out``) or replicated values out."""
+            return jax.jit(fn, in_shardings=(shard,), out_shardings=shard if state_out else sharding.replicated(mesh))
 
-    acting = jit(lambda s: trainer.collect_insert(s, key)[0], *(() if mesh is None else (shard,)))
+    acting = jit(lambda s: trainer.collect_insert(s, key)[0], state_out=True)
     learning = jit(lambda s: trainer.learn(s, key)[:2])
-    whole = jit(lambda s: trainer.iteration(s)[0], *(() if mesh is None else (shard,)))
+    whole = jit(lambda s: trainer.iteration(s)[0], state_out=True)
     t_act, t_learn, t_whole = best_of(acting, state), best_of(learning, state), best_of(whole, state)
     updates = trainer.scheduler_updates + trainer.new_skill_updates
     return {"devices": jax.device_count(), "backend": jax.default_backend(), "num_envs": cfg.num_envs,

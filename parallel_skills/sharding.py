@@ -59,12 +59,15 @@ def check_divisible(config, num_devices: int) -> None:
                              f"{num_devices} (each device takes an equal share)")
 
 
+def _split(mesh: Mesh, axis: int) -> NamedSharding:
+    """Split along ``axis`` over the mesh."""
+    return NamedSharding(mesh, P(*([None] * axis + [AXIS])))
+
+
 def _along(leaf, mesh: Mesh, axis: int, size: int) -> NamedSharding:
     """Sharded along ``axis`` when that axis has ``size`` entries (the env batch), else replicated."""
     shape = getattr(leaf, "shape", ())
-    if len(shape) > axis and shape[axis] == size:
-        return NamedSharding(mesh, P(*([None] * axis + [AXIS])))
-    return replicated(mesh)
+    return _split(mesh, axis) if len(shape) > axis and shape[axis] == size else replicated(mesh)
 
 
 def state_shardings(state, mesh: Mesh, num_envs: int, seed_axis: bool = False):
@@ -81,23 +84,13 @@ def state_shardings(state, mesh: Mesh, num_envs: int, seed_axis: bool = False):
     return state.replace(**out)
 
 
-def shard_rows(tree, mesh: Mesh, size: int):
-    """Inside a jitted function: constrain every leaf with ``size`` leading rows to be split along
-    the mesh (a learner batch: each device computes the losses of its rows)."""
+def constrain(tree, mesh: Mesh, size: int, axis: int = 0):
+    """Inside a jitted function: constrain the leaves with ``size`` entries on ``axis`` to be split
+    along the mesh (the actor state: ``size`` = num_envs; a learner batch: ``size`` = its rows, each
+    device computing the losses of its rows). Other leaves are left to the partitioner."""
     def one(x):
-        if getattr(x, "ndim", 0) >= 1 and x.shape[0] == size:
-            return jax.lax.with_sharding_constraint(x, NamedSharding(mesh, P(AXIS)))
-        return x
-
-    return jax.tree.map(one, tree)
-
-
-def shard_envs(tree, mesh: Mesh, num_envs: int, axis: int = 0):
-    """Inside a jitted function: constrain the leaves with ``num_envs`` entries on ``axis`` to be
-    split along the mesh (the actor state, an unroll [T, B, ...] with ``axis=1``)."""
-    def one(x):
-        if getattr(x, "ndim", 0) > axis and x.shape[axis] == num_envs:
-            return jax.lax.with_sharding_constraint(x, NamedSharding(mesh, P(*([None] * axis + [AXIS]))))
+        if getattr(x, "ndim", 0) > axis and x.shape[axis] == size:
+            return jax.lax.with_sharding_constraint(x, _split(mesh, axis))
         return x
 
     return jax.tree.map(one, tree)

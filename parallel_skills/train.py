@@ -158,8 +158,8 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig, mesh
         raise ValueError("method rhpo needs at least one frozen skill (its mixture's components)")
     if mesh is not None and mesh.size > 1:
         sharding.check_divisible(config, mesh.size)
-        envs = lambda tree: sharding.shard_envs(tree, mesh, config.num_envs)  # noqa: E731
-        rows = lambda sample, n: (lambda k: sharding.shard_rows(sample(k), mesh, n))  # noqa: E731
+        envs = lambda tree: sharding.constrain(tree, mesh, config.num_envs)  # noqa: E731
+        rows = lambda sample, n: (lambda k: sharding.constrain(sample(k), mesh, n))  # noqa: E731
     else:
         envs = lambda tree: tree  # noqa: E731
         rows = lambda sample, n: sample  # noqa: E731
