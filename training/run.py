@@ -33,7 +33,7 @@ import time
 
 from training import rundir
 from training.cli import Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int
-from training.logging_utils import Progress, TensorBoardLogger, format_row, resident_mb
+from training.logging_utils import Progress, TensorBoardLogger, format_row, release_free_memory, resident_mb
 from training.rundir import RunRecord
 from parallel_skills.config import RECIPES, TrainConfig
 
@@ -600,6 +600,7 @@ class _RunFiles:
     def progress(self, steps, m):
         if not self.primary:
             return
+        release_free_memory()  # (freed compiler memory glibc would keep: rss_mb then tracks live memory)
         m = dict(m, rss_mb=resident_mb())
         self._write_row(format_row(m, self.fields))
         self.csv_rows += 1
