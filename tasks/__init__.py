@@ -4,8 +4,8 @@ Every task of the manipulation domain (``tasks.names()``) exists for every physi
 ``kinematic`` (pure JAX, no physics engine), ``mjx`` (MuJoCo MJX, impl jax), ``warp`` (MJX, impl
 warp) and ``mujoco`` (classic MuJoCo C engine called from JAX through ``pure_callback``).
 
-The OP3 locomotion tasks (``LOCOMOTION_TASKS``: ``getup_and_walk``, ``op3_getup``, ``op3_walk``;
-docs/locomotion.md) exist for ``mujoco`` and ``mjx`` and need the extra ``locomotion``.
+The OP3 locomotion tasks (``LOCOMOTION_TASKS``: ``getup_and_walk``, ``op3_getup``, ``op3_walk``,
+``goal_scoring``; docs/locomotion.md) exist for ``mujoco`` and ``mjx`` and need the extra ``locomotion``.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from tasks.manipulation import task_defs
 
 PHYSICS = ("kinematic", "mjx", "warp", "mujoco")
 LOCOMOTION_PHYSICS = ("mujoco", "mjx")
-LOCOMOTION_TASKS = ("getup_and_walk", "op3_getup", "op3_walk")
+LOCOMOTION_TASKS = ("getup_and_walk", "op3_getup", "op3_walk", "goal_scoring")
 
 
 def names() -> list[str]:

@@ -1,5 +1,6 @@
 """Brax-API OP3 locomotion envs (paper Sec. 5 / App. C): ``getup_and_walk`` and the dense skill
-tasks ``op3_getup`` and ``op3_walk``, on two physics backends sharing everything but the physics:
+tasks ``op3_getup`` and ``op3_walk`` (``goal_scoring``: tasks/locomotion/goal_scoring.py, on the
+backends below with the arena model), on two physics backends sharing everything but the physics:
 
 * ``mujoco``: classic MuJoCo (C, float64) stepped in a ``jax.pure_callback`` (``vmap_method=
   "broadcast_all"``: one callback steps the whole env batch); the float64 physics state (time, qpos,
@@ -57,7 +58,7 @@ MAX_QVEL = 1e3  # |qvel| above this counts as a physics blow-up
 @dataclasses.dataclass(frozen=True)
 class LocoTask:
     name: str
-    reward: str  # "walk" (R_walk while standing) or "getup"
+    reward: str  # "walk" (R_walk while standing), "getup" or "goal_scoring" (tasks/locomotion/goal_scoring.py)
     prone_fraction: float
     episode_length: int
     description: str
@@ -71,6 +72,9 @@ TASKS = {
         LocoTask("op3_getup", "getup", 1.0, 200,
                  "Get-up skill (dense): torso height × uprightness, from prone starts; success: standing"),
         LocoTask("op3_walk", "walk", 0.0, 400, "Walk skill (dense): R_walk while standing, from standing starts"),
+        LocoTask("goal_scoring", "goal_scoring", 0.0, 600,
+                 "GoalScoring (App. C): walled arena, ball, goal, a short wall; R_score (1000 per goal) + "
+                 "R_upright + R_maxvelocity; terminates if the robot leaves its half or falls"),
     )
 }
 
@@ -201,7 +205,12 @@ class _Kinematics:
 
 
 class LocomotionEnv(Env):
-    """Shared Brax-API logic; backends implement ``_init_physics`` and ``_step_physics``."""
+    """Shared Brax-API logic; backends implement ``_init_physics`` and ``_step_physics``. ``arena``
+    (class attribute): the physics model is the GoalScoring arena (``model.load_arena_model``: the
+    robot, a ball, an obstacle as mocap body) instead of the robot alone; the robot's layout and
+    kinematics are those of the robot-only model either way (the robot comes first in both)."""
+
+    arena = False
 
     def __init__(self, task_name: str, episode_length: int | None = None, prone_fraction: float | None = None,
                  **physics_options: Any):
@@ -211,12 +220,13 @@ class LocomotionEnv(Env):
         if self.episode_length < 1:
             raise ValueError(f"episode_length must be a positive integer, got {episode_length}")
         self.model_key = tuple(sorted(physics_options.items()))
-        self.mj_model, self.substeps = M.load_model(**physics_options)
+        robot_model, self.substeps = M.load_model(**physics_options)
+        self.mj_model = M.load_arena_model(**physics_options)[0] if self.arena else robot_model
         self.layout = M.layout(self.model_key)
         self.stand_pose = jnp.asarray(self.layout.stand_pose, jnp.float32)
         frac = self.task.prone_fraction if prone_fraction is None else float(prone_fraction)
         self.sampler = S.StartSampler(frac, self.model_key)
-        self.features = _Kinematics(self.mj_model, self.layout)
+        self.features = _Kinematics(robot_model, self.layout)
         self.control_dt = self.substeps * float(self.mj_model.opt.timestep)
 
     # --- Brax env API ----------------------------------------------------------------------
@@ -328,44 +338,47 @@ _INTEGRATION_FIELDS = ("time", "qpos", "qvel", "act", "qacc_warmstart", "ctrl")
 _MJX_CACHE: dict = {}
 
 
-def _mjx_physics(model_key: tuple):
-    """(mjx model, template data, jitted agent-step physics), shared by all tasks of a process."""
-    if model_key not in _MJX_CACHE:
-        mj_model, substeps = M.load_model(**dict(model_key))
+def _mjx_physics(model_key: tuple, arena: bool = False):
+    """(mjx model, template data, jitted agent-step physics), shared by all tasks of a process.
+    ``arena``: the GoalScoring scene; the fresh state then also sets the mocap positions."""
+    if (model_key, arena) not in _MJX_CACHE:
+        mj_model, substeps = (M.load_arena_model if arena else M.load_model)(**dict(model_key))
         model = mjx.put_model(mj_model, impl="jax")
         data0 = mjx.make_data(mj_model, impl="jax")
+        fields = _INTEGRATION_FIELDS + (("mocap_pos",) if arena else ())
 
-        def fresh_data(qpos, hold):
-            return data0.replace(qpos=qpos, qvel=jnp.zeros(M.NV, jnp.float32), ctrl=hold)
+        def fresh_data(qpos, hold, mocap_pos=None):
+            data = data0.replace(qpos=qpos, qvel=jnp.zeros(mj_model.nv, jnp.float32), ctrl=hold)
+            return data if mocap_pos is None else data.replace(mocap_pos=mocap_pos)
 
         @jax.jit
-        def physics(data, ctrl, fresh_qpos, fresh_hold):
+        def physics(data, ctrl, fresh_qpos, fresh_hold, fresh_mocap=None):
             data = data.replace(ctrl=ctrl)
             data, _ = jax.lax.scan(lambda d, _: (mjx.step(model, d), None), data, None, length=substeps)
             bad = ~(jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
                     & jnp.all(jnp.abs(data.qvel) < MAX_QVEL))
-            fresh = fresh_data(fresh_qpos, fresh_hold)
-            data = data.replace(**{k: jnp.where(bad, getattr(fresh, k), getattr(data, k)) for k in _INTEGRATION_FIELDS})
+            fresh = fresh_data(fresh_qpos, fresh_hold, fresh_mocap)
+            data = data.replace(**{k: jnp.where(bad, getattr(fresh, k), getattr(data, k)) for k in fields})
             return data, bad
 
-        _MJX_CACHE[model_key] = (model, data0, fresh_data, physics)
-    return _MJX_CACHE[model_key]
+        _MJX_CACHE[(model_key, arena)] = (model, data0, fresh_data, physics)
+    return _MJX_CACHE[(model_key, arena)]
 
 
 class MjxLocomotionEnv(LocomotionEnv):
     def __init__(self, task_name: str, **kw: Any):
         super().__init__(task_name, **kw)
-        self.model, self._data0, self._fresh_data, self._physics = _mjx_physics(self.model_key)
+        self.model, self._data0, self._fresh_data, self._physics = _mjx_physics(self.model_key, self.arena)
 
     @property
     def backend(self) -> str:
         return "mjx"
 
-    def _init_physics(self, qpos, hold):
-        return self._fresh_data(qpos, hold)
+    def _init_physics(self, qpos, hold, mocap_pos=None):
+        return self._fresh_data(qpos, hold, mocap_pos)
 
-    def _step_physics(self, data, ctrl, fresh_qpos, fresh_hold):
-        data, bad = self._physics(data, ctrl, fresh_qpos, fresh_hold)
+    def _step_physics(self, data, ctrl, fresh_qpos, fresh_hold, fresh_mocap=None):
+        data, bad = self._physics(data, ctrl, fresh_qpos, fresh_hold, fresh_mocap)
         return data, data.qpos, data.qvel, bad
 
 
@@ -374,42 +387,51 @@ STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS | mujoco.mjtState.mjSTATE_WARMS
 
 
 class _HostStepper:
-    """Steps batches of float64 physics states (time, qpos, qvel, act, warm start) on the host."""
+    """Steps batches of float64 physics states (time, qpos, qvel, act, warm start; the mocap
+    positions too if the model has mocap bodies) on the host."""
 
     def __init__(self, mj_model: mujoco.MjModel, substeps: int, num_threads: int):
         self.model, self.substeps = mj_model, substeps
-        self.size = mujoco.mj_stateSize(mj_model, STATE_SPEC)
+        self.nq, self.nv = mj_model.nq, mj_model.nv
+        self.spec = STATE_SPEC | (mujoco.mjtState.mjSTATE_MOCAP_POS if mj_model.nmocap else 0)
+        self.size = mujoco.mj_stateSize(mj_model, self.spec)
+        # The state's components are concatenated in the order of their bits.
+        self.mocap_adr = mujoco.mj_stateSize(mj_model, self.spec & (mujoco.mjtState.mjSTATE_MOCAP_POS - 1))
         self.num_threads = max(1, int(num_threads))
         self.datas = [mujoco.MjData(mj_model) for _ in range(self.num_threads)]
         self.pool = concurrent.futures.ThreadPoolExecutor(self.num_threads) if self.num_threads > 1 else None
         self.calls = 0
 
-    def fresh(self, qpos) -> np.ndarray:
-        """States [B, size] at qpos [B, NQ], at rest, time 0, no warm start."""
-        qpos = np.asarray(qpos, np.float64).reshape(-1, M.NQ)
+    def fresh(self, qpos, mocap_pos=None) -> np.ndarray:
+        """States [B, size] at qpos [B, nq] (and mocap positions [B, nmocap, 3]), at rest, time 0, no
+        warm start."""
+        qpos = np.asarray(qpos, np.float64).reshape(-1, self.nq)
         out = np.zeros((qpos.shape[0], self.size))
-        out[:, 1:1 + M.NQ] = qpos
+        out[:, 1:1 + self.nq] = qpos
+        if mocap_pos is not None:
+            n = 3 * self.model.nmocap
+            out[:, self.mocap_adr:self.mocap_adr + n] = np.asarray(mocap_pos, np.float64).reshape(-1, n)
         return out
 
     def _run(self, data, states, ctrl, fresh, bad, lo, hi):
         m, dt = self.model, self.model.opt.timestep
         for b in range(lo, hi):
-            mujoco.mj_setState(m, data, states[b], STATE_SPEC)
+            mujoco.mj_setState(m, data, states[b], self.spec)
             data.ctrl[:] = ctrl[b]
             t0 = data.time
             for _ in range(self.substeps):
                 mujoco.mj_step(m, data)
-            mujoco.mj_getState(m, data, states[b], STATE_SPEC)
-            qv = states[b, 1 + M.NQ:1 + M.NQ + M.NV]
+            mujoco.mj_getState(m, data, states[b], self.spec)
+            qv = states[b, 1 + self.nq:1 + self.nq + self.nv]
             if (not np.all(np.isfinite(states[b])) or np.abs(qv).max() >= MAX_QVEL
                     or abs(data.time - t0 - self.substeps * dt) > 1e-6):  # MuJoCo reset the data itself
                 bad[b] = True
                 states[b] = fresh[b]
 
-    def step(self, states, ctrl, fresh_qpos):
+    def step(self, states, ctrl, fresh_qpos, fresh_mocap=None):
         states = np.array(states, np.float64).reshape(-1, self.size)
         ctrl = np.asarray(ctrl, np.float64).reshape(-1, M.NU)
-        fresh = self.fresh(fresh_qpos)
+        fresh = self.fresh(fresh_qpos, fresh_mocap)
         bad = ~np.all(np.isfinite(states), axis=-1)
         states[bad] = fresh[bad]
         n = states.shape[0]
@@ -443,30 +465,35 @@ class MujocoLocomotionEnv(LocomotionEnv):
     def backend(self) -> str:
         return "mujoco"
 
-    def _host_init(self, qpos):
+    def _host_init(self, qpos, mocap_pos=None):
         qpos = np.asarray(qpos)
-        return encode_states(self.stepper.fresh(qpos)).reshape(qpos.shape[:-1] + (self.words,))
+        return encode_states(self.stepper.fresh(qpos, mocap_pos)).reshape(qpos.shape[:-1] + (self.words,))
 
-    def _host_step(self, words, ctrl, fresh_qpos):
+    def _host_step(self, words, ctrl, fresh_qpos, fresh_mocap=None):
         words = np.asarray(words)
         batch = words.shape[:-1]
-        states, bad = self.stepper.step(decode_states(words.reshape(-1, self.words)), ctrl, fresh_qpos)
-        q = states[:, 1:1 + M.NQ].astype(np.float32)
-        v = states[:, 1 + M.NQ:1 + M.NQ + M.NV].astype(np.float32)
-        return (encode_states(states).reshape(batch + (self.words,)), q.reshape(batch + (M.NQ,)),
-                v.reshape(batch + (M.NV,)), bad.reshape(batch))
+        states, bad = self.stepper.step(decode_states(words.reshape(-1, self.words)), ctrl, fresh_qpos, fresh_mocap)
+        nq, nv = self.stepper.nq, self.stepper.nv
+        q = states[:, 1:1 + nq].astype(np.float32)
+        v = states[:, 1 + nq:1 + nq + nv].astype(np.float32)
+        return (encode_states(states).reshape(batch + (self.words,)), q.reshape(batch + (nq,)),
+                v.reshape(batch + (nv,)), bad.reshape(batch))
 
-    def _init_physics(self, qpos, hold):
+    def _init_physics(self, qpos, hold, mocap_pos=None):
         shape = jax.ShapeDtypeStruct((self.words,), jnp.uint32)
-        return jax.pure_callback(self._host_init, shape, qpos, vmap_method="broadcast_all")
+        args = (qpos,) if mocap_pos is None else (qpos, mocap_pos)
+        return jax.pure_callback(self._host_init, shape, *args, vmap_method="broadcast_all")
 
-    def _step_physics(self, words, ctrl, fresh_qpos, fresh_hold):
-        shapes = (jax.ShapeDtypeStruct((self.words,), jnp.uint32), jax.ShapeDtypeStruct((M.NQ,), jnp.float32),
-                  jax.ShapeDtypeStruct((M.NV,), jnp.float32), jax.ShapeDtypeStruct((), jnp.bool_))
-        return jax.pure_callback(self._host_step, shapes, words, ctrl, fresh_qpos, vmap_method="broadcast_all")
+    def _step_physics(self, words, ctrl, fresh_qpos, fresh_hold, fresh_mocap=None):
+        shapes = (jax.ShapeDtypeStruct((self.words,), jnp.uint32),
+                  jax.ShapeDtypeStruct((self.stepper.nq,), jnp.float32),
+                  jax.ShapeDtypeStruct((self.stepper.nv,), jnp.float32), jax.ShapeDtypeStruct((), jnp.bool_))
+        args = (words, ctrl, fresh_qpos) + (() if fresh_mocap is None else (fresh_mocap,))
+        return jax.pure_callback(self._host_step, shapes, *args, vmap_method="broadcast_all")
 
     def physics_states(self, state: State) -> np.ndarray:
-        """Host copy of the float64 physics states [..., size] (time, qpos, qvel, act, warm start)."""
+        """Host copy of the float64 physics states [..., size] (time, qpos, qvel, act, warm start; the
+        mocap positions in the arena)."""
         return decode_states(jax.device_get(state.pipeline_state)).copy()
 
     def encode(self, states: np.ndarray) -> jax.Array:
@@ -477,8 +504,12 @@ def make_locomotion_env(task_name: str, physics: str = "mujoco", **overrides: An
     """Brax-API env of locomotion task ``task_name`` on ``physics`` "mujoco" or "mjx". Overrides:
     ``episode_length``, ``prone_fraction``, physics options of ``model.load_model`` (timestep,
     substeps, iterations, ls_iterations) and, for mujoco, ``num_threads``."""
-    get(task_name)
+    task = get(task_name)
     M.asset_root()  # the one-line error naming the extra, before anything else
+    if task.reward == "goal_scoring":
+        from tasks.locomotion.goal_scoring import make_goal_scoring_env
+
+        return make_goal_scoring_env(task_name, physics=physics, **overrides)
     if physics == "mujoco":
         return MujocoLocomotionEnv(task_name, **overrides)
     if physics == "mjx":

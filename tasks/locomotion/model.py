@@ -14,6 +14,9 @@ Changes to Playground's scene (``build_model``):
     pairs. The ground-proximity test (R_ground) reads the meshes' vertices, not the boxes.
   * timestep 5 ms (the scene's 4 ms does not divide the paper's 25 ms control period): 5 physics
     steps per agent step.
+
+``load_arena_model``: the same robot in GoalScoring's arena (walls, goal, a ball, the obstacle as a
+mocap body), the robot first so that its indices are unchanged (docs/locomotion.md, GoalScoring).
 """
 
 from __future__ import annotations
@@ -86,8 +89,7 @@ def _mesh_boxes(model: mujoco.MjModel) -> list[tuple[str, np.ndarray, np.ndarray
     return boxes
 
 
-@functools.lru_cache(maxsize=8)
-def _compiled(timestep: float, iterations: int, ls_iterations: int) -> mujoco.MjModel:
+def _robot_spec(timestep: float, iterations: int, ls_iterations: int) -> mujoco.MjSpec:
     spec = mujoco.MjSpec.from_file(str(scene_path()))
     boxes = _mesh_boxes(spec.compile())
     for geom in spec.geoms:
@@ -99,7 +101,85 @@ def _compiled(timestep: float, iterations: int, ls_iterations: int) -> mujoco.Mj
     spec.option.timestep = timestep
     spec.option.iterations = iterations
     spec.option.ls_iterations = ls_iterations
-    return spec.compile()
+    return spec
+
+
+@functools.lru_cache(maxsize=8)
+def _compiled(timestep: float, iterations: int, ls_iterations: int) -> mujoco.MjModel:
+    return _robot_spec(timestep, iterations, ls_iterations).compile()
+
+
+# --- GoalScoring arena (tasks/locomotion/goal_scoring.py) --------------------------------------------
+ARENA_HALF = 2.0  # the arena is [-2, 2] x [-2, 2] m; the robot's half is x <= 0
+GOAL_DEPTH, GOAL_WIDTH = 0.5, 1.0  # goal region: x in [2 - 0.5, 2], |y| <= 0.5 (against the +x wall)
+BALL_RADIUS = 0.07  # m (a size-1 football: ≈ 14 cm across, for a 51 cm robot)
+BALL_MASS = 0.15  # kg
+BALL_DAMPING = 0.05  # N·s/m on the ball's translation (not its rotation): a ball rolling at 1 m/s stops
+# after ≈ 4 m (rolling: effective mass 1.4 × BALL_MASS; condim 3 has no rolling friction); one kicked
+# (sliding) at 1 m/s, after ≈ 3 m
+OBSTACLE_HALF = (0.025, 0.3, 0.1)  # the short wall: 5 cm thick, 0.6 m long (along y), 0.2 m high
+ARENA_WALL_HEIGHT = 0.3  # visual only: the arena walls are planes (infinite for collision)
+# Contact bits: 1 feet (Playground's), 2 the rest of the robot (the boxes above), 4 walls vs the ball,
+# 8 walls vs the torso's main box. The ball collides with the floor, the whole robot, the walls and
+# the obstacle. The three walls of the robot's half also stop the robot's feet and torso (not every
+# box: in MJX each box-plane pair adds 4 contacts to the constraint system); the far wall and the
+# obstacle, ≥ 0.5 m beyond the halfway line that ends the episode, only the ball.
+BALL_CONTYPE, BALL_CONAFFINITY = 1 | 2, 2 | 4
+WALL_CONTYPE, WALL_CONAFFINITY = 4, 0
+OWN_WALL_CONTYPE = 4 | 1 | 8
+TORSO_WALL_BIT = 8
+BALL_BODY, OBSTACLE_BODY = "ball", "obstacle"
+
+
+def _arena_spec(timestep: float, iterations: int, ls_iterations: int) -> mujoco.MjSpec:
+    spec = _robot_spec(timestep, iterations, ls_iterations)
+    while spec.keys:  # the robot's keyframes (27 qpos) do not fit the arena's qpos; layout() reads them
+        spec.delete(spec.keys[0])
+    world = spec.worldbody
+    # The arena's static geoms and sites on a static body after the robot (not on the world body):
+    # the robot's geom and site ids stay those of the robot-only model.
+    arena = world.add_body(name="arena")
+    a, h = ARENA_HALF, ARENA_WALL_HEIGHT / 2
+    s2 = np.sqrt(0.5)
+    # Arena walls: planes facing inwards (plane normal = local z); local x is vertical.
+    for name, pos, quat in (("wall_px", (a, 0, h), (s2, 0, -s2, 0)), ("wall_nx", (-a, 0, h), (s2, 0, s2, 0)),
+                            ("wall_py", (0, a, h), (s2, s2, 0, 0)), ("wall_ny", (0, -a, h), (s2, -s2, 0, 0))):
+        arena.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_PLANE, pos=pos, quat=quat, size=[h, a, 0.05],
+                       contype=WALL_CONTYPE if name == "wall_px" else OWN_WALL_CONTYPE,
+                       conaffinity=WALL_CONAFFINITY, rgba=[0.6, 0.6, 0.65, 1])
+    # The torso's largest contact box also hits the walls.
+    torso_boxes = [g for g in spec.body(TORSO_BODY).geoms if g.type == mujoco.mjtGeom.mjGEOM_BOX and g.group == 4]
+    max(torso_boxes, key=lambda g: float(np.prod(g.size))).conaffinity |= TORSO_WALL_BIT
+    arena.add_site(name="goal", type=mujoco.mjtGeom.mjGEOM_BOX, pos=(a - GOAL_DEPTH / 2, 0, 0.001),
+                   size=[GOAL_DEPTH / 2, GOAL_WIDTH / 2, 0.001], rgba=[0.9, 0.9, 0.2, 0.5])
+    arena.add_site(name="halfway", type=mujoco.mjtGeom.mjGEOM_BOX, pos=(0, 0, 0.001), size=[0.01, a, 0.001],
+                   rgba=[0.2, 0.2, 0.2, 0.5])
+    ball = world.add_body(name=BALL_BODY, pos=(-1.0, 0, BALL_RADIUS))
+    ball.add_freejoint(name="ball")
+    ball.add_geom(name="ball", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[BALL_RADIUS, 0, 0], mass=BALL_MASS,
+                  contype=BALL_CONTYPE, conaffinity=BALL_CONAFFINITY, friction=[0.7, 0.005, 0.0001],
+                  rgba=[0.95, 0.95, 0.95, 1])
+    obstacle = world.add_body(name=OBSTACLE_BODY, pos=(1.0, 0, OBSTACLE_HALF[2]), mocap=True)
+    obstacle.add_geom(name="obstacle", type=mujoco.mjtGeom.mjGEOM_BOX, size=list(OBSTACLE_HALF),
+                      contype=WALL_CONTYPE, conaffinity=WALL_CONAFFINITY, rgba=[0.7, 0.3, 0.2, 1])
+    return spec
+
+
+@functools.lru_cache(maxsize=8)
+def _compiled_arena(timestep: float, iterations: int, ls_iterations: int) -> mujoco.MjModel:
+    model = _arena_spec(timestep, iterations, ls_iterations).compile()
+    ball_dof = model.jnt_dofadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "ball")]
+    model.dof_damping[ball_dof:ball_dof + 3] = BALL_DAMPING  # translation only: a joint's damping is
+    # the same for all its dofs, and on the rotation it would stop the ball rolling within ≈ 10 ms
+    robot = _compiled(timestep, iterations, ls_iterations)
+    # The robot comes first (bodies, joints, qpos, qvel, actuators): its indices, the JAX kinematics
+    # and Layout of the robot-only model hold in the arena too.
+    assert (model.nq, model.nv, model.nu, model.nmocap) == (NQ + 7, NV + 6, NU, 1)
+    assert list(model.body_parentid[:robot.nbody]) == list(robot.body_parentid)
+    assert list(model.geom_bodyid[:robot.ngeom]) == list(robot.geom_bodyid)
+    assert list(model.site_bodyid[:robot.nsite]) == list(robot.site_bodyid)
+    assert model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "ball")] == NQ
+    return model
 
 
 def load_model(**options) -> tuple[mujoco.MjModel, int]:
@@ -116,6 +196,15 @@ def load_model(**options) -> tuple[mujoco.MjModel, int]:
             raise ValueError(f"timestep {timestep} does not divide the control period {CONTROL_DT}; pass substeps")
     model = _compiled(timestep, int(options.get("iterations", 1)), int(options.get("ls_iterations", 5)))
     return model, int(substeps)
+
+
+def load_arena_model(**options) -> tuple[mujoco.MjModel, int]:
+    """The GoalScoring scene (the robot, then the ball's free joint at qpos[NQ:NQ + 7], the obstacle
+    as the only mocap body) and the substeps; options as ``load_model``."""
+    _, substeps = load_model(**options)
+    model = _compiled_arena(float(options.get("timestep", TIMESTEP)), int(options.get("iterations", 1)),
+                            int(options.get("ls_iterations", 5)))
+    return model, substeps
 
 
 class Layout:

@@ -72,6 +72,12 @@ def r_upright(up_z):
     return jnp.clip((UPRIGHT_ZERO - tilt(up_z)) / (UPRIGHT_ZERO - UPRIGHT_MARGIN), 0.0, 1.0)
 
 
+def r_maxvelocity(feet_vel, heading):
+    """GoalScoring's R_maxvelocity: the planar velocity of the feet (mean of both, [2]) along the
+    robot's forward direction (heading, unit, world); negative when walking backwards."""
+    return jnp.sum(feet_vel * heading, axis=-1)
+
+
 def r_action(action, prev_action):
     return -jnp.mean((action - prev_action) ** 2, axis=-1)
 
