@@ -273,10 +273,10 @@ def recipe_values(recipe: str, num_envs: int, unroll_length: int) -> dict:
       indicator weights with 10-step TD targets, which carry the sparse reward back with 4× fewer
       samples than the one-step recipe needed (64).
     * ``parallel`` (the default on an accelerator): one env step per env per iteration and a fixed
-      32 updates of batches that grow with the envs: scheduler batch steps/2 × 8 updates
-      (4 samples per env step), new skill batch = steps × 24 updates (24 per env step), 10-step
-      TD targets; the update-counted schedules (warm-up, target periods) are shortened to keep
-      their env-step meaning at 1,024 envs.
+      32 updates of batches that grow with the envs: scheduler batch 25·steps/8 × 8 updates
+      (25 samples per env step, 4× below the paper's 100), new skill batch = steps × 24 updates
+      (24 per env step, the paper's 50 / 2.1), 10-step TD targets; the update-counted schedules
+      (warm-up, target periods) are shortened to keep their env-step meaning at 1,024 envs.
     """
     if recipe not in RECIPES:
         raise ValueError(f"unknown recipe {recipe!r}; valid: {', '.join(RECIPES)}")
@@ -287,7 +287,7 @@ def recipe_values(recipe: str, num_envs: int, unroll_length: int) -> dict:
                 ("new_skill", "samples_per_insert"): 16.0, ("new_skill", "crr_mode"): "indicator",
                 ("new_skill", "n_step"): 10}
     steps = int(num_envs) * int(unroll_length)
-    return {("scheduler", "batch_size"): max(1, steps // 2), ("scheduler", "samples_per_insert"): 4.0,
+    return {("scheduler", "batch_size"): max(1, steps * 25 // 8), ("scheduler", "samples_per_insert"): 25.0,
             ("scheduler", "policy_warmup_updates"): 190, ("scheduler", "target_actor_period"): 12,
             ("scheduler", "target_critic_period"): 3,
             ("new_skill", "batch_size"): steps, ("new_skill", "samples_per_insert"): 24.0,
