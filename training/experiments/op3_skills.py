@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import shlex
 import sys
@@ -40,10 +39,10 @@ import numpy as np
 
 import tasks
 from tasks.locomotion import controllers as C
+from tasks.locomotion import env as E
 from tasks.locomotion import starts as S
 
 TASK = {"getup": "op3_getup", "walk": "op3_walk"}
-COS_UPRIGHT = math.cos(math.radians(12.5))
 WALK_SPEED = 0.3
 STATE_DIR = Path("runs") / "op3_skills"
 
@@ -78,14 +77,14 @@ def make_rollout(env, skill: str, steps: int, noise: float = 0.0):
             if noise > 0:
                 a = a + noise * joint_mask * jax.random.normal(jax.random.fold_in(noise_key, t), a.shape)
             s2 = jax.vmap(env.step)(s, a)
-            g = s2.obs[:, C.NU + 3:C.NU + 6]
+            g = jax.vmap(C.gravity)(s2.obs)
             stand = s2.metrics["standing"] > 0.5
-            upright = (-g[:, 2]) >= COS_UPRIGHT
+            upright = (-g[:, 2]) >= C.COS_UPRIGHT
             success = stand & upright
             first = jnp.where((c["first"] > steps) & success, t + 1, c["first"])
             # heading from the goal observation (fwd, left) and the world goal direction
             gd = s2.info["goal_dir"]
-            fwd, left = s2.obs[:, -3], s2.obs[:, -2]
+            fwd, left = s2.obs[:, E.OBS_GOAL][:, 0], s2.obs[:, E.OBS_GOAL][:, 1]
             heading = fwd[:, None] * gd + left[:, None] * jnp.stack([gd[:, 1], -gd[:, 0]], -1)
             disp = jnp.sum((jnp.mean(s2.info["feet_xy"], 1) - jnp.mean(s.info["feet_xy"], 1)) * heading, -1)
             disp = jnp.where(s2.info["nan_reset"] > 0, 0.0, disp)
