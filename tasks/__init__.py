@@ -2,7 +2,7 @@
 
 Every task of the manipulation domain (``tasks.names()``) exists for every physics backend:
 ``kinematic`` (pure JAX, no physics engine), ``mjx`` (MuJoCo MJX, impl jax), ``warp`` (MJX, impl
-warp) and ``mujoco`` (classic MuJoCo C engine called from JAX through ``pure_callback``).
+warp) and ``mujoco`` (classic MuJoCo C engine called from JAX through a host callback, ``tasks.host_call``).
 
 The OP3 locomotion tasks (``LOCOMOTION_TASKS``: ``getup_and_walk``, ``op3_getup``, ``op3_walk``,
 ``goal_scoring``; docs/locomotion.md) exist for ``mujoco`` and ``mjx`` and need the extra ``locomotion``.

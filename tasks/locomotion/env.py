@@ -2,8 +2,9 @@
 tasks ``op3_getup`` and ``op3_walk`` (``goal_scoring``: tasks/locomotion/goal_scoring.py, on the
 backends below with the arena model), on two physics backends sharing everything but the physics:
 
-* ``mujoco``: classic MuJoCo (C, float64) stepped in a ``jax.pure_callback`` (``vmap_method=
-  "broadcast_all"``: one callback steps the whole env batch); the float64 physics state (time, qpos,
+* ``mujoco``: classic MuJoCo (C, float64) stepped in a host callback (``tasks.host_call``: a
+  ``jax.pure_callback`` with ``vmap_method="broadcast_all"`` that hands the host NumPy arrays; one
+  callback steps the whole env batch); the float64 physics state (time, qpos,
   qvel, act, warm start) is carried bit-exactly as uint32 words (``State.pipeline_state``).
 * ``mjx``: MuJoCo MJX (impl jax, float32); ``pipeline_state`` is the ``mjx.Data``. On a 2-core CPU
   run it pinned to one core (shared/STACK.md: MJX-jax can deadlock otherwise).
@@ -37,6 +38,7 @@ import numpy as np
 from brax.envs.base import Env, State
 from mujoco import mjx
 
+from tasks.host_call import host_call
 from tasks.locomotion import model as M
 from tasks.locomotion import rewards as R
 from tasks.locomotion import starts as S
@@ -482,14 +484,14 @@ class MujocoLocomotionEnv(LocomotionEnv):
     def _init_physics(self, qpos, hold, mocap_pos=None):
         shape = jax.ShapeDtypeStruct((self.words,), jnp.uint32)
         args = (qpos,) if mocap_pos is None else (qpos, mocap_pos)
-        return jax.pure_callback(self._host_init, shape, *args, vmap_method="broadcast_all")
+        return host_call(self._host_init, shape, *args)
 
     def _step_physics(self, words, ctrl, fresh_qpos, fresh_hold, fresh_mocap=None):
         shapes = (jax.ShapeDtypeStruct((self.words,), jnp.uint32),
                   jax.ShapeDtypeStruct((self.stepper.nq,), jnp.float32),
                   jax.ShapeDtypeStruct((self.stepper.nv,), jnp.float32), jax.ShapeDtypeStruct((), jnp.bool_))
         args = (words, ctrl, fresh_qpos) + (() if fresh_mocap is None else (fresh_mocap,))
-        return jax.pure_callback(self._host_step, shapes, *args, vmap_method="broadcast_all")
+        return host_call(self._host_step, shapes, *args)
 
     def physics_states(self, state: State) -> np.ndarray:
         """Host copy of the float64 physics states [..., size] (time, qpos, qvel, act, warm start; the

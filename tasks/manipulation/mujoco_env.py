@@ -1,7 +1,8 @@
 """Physics manipulation domain on classic MuJoCo (C), inside jitted JAX code: the CPU fast path.
 
 ``make_mujoco_env(task)`` returns a Brax-API env whose ``reset`` / ``step`` call
-``jax.pure_callback`` (``vmap_method="broadcast_all"``): under ``vmap`` one callback receives the
+``tasks.host_call`` (``jax.pure_callback`` with ``vmap_method="broadcast_all"``, minus its
+device_put of the arguments, which can deadlock a process pinned to one core): under ``vmap`` one callback receives the
 whole env batch and steps it with a multi-threaded ``mujoco.rollout`` (``physics_np.Stepper``),
 observations / rewards from the NumPy code of ``physics_np`` (the same step function as the
 JAX-free ``MujocoTwin``). MuJoCo's float64 full physics state (time, qpos, qvel, act) is carried
@@ -18,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from brax.envs.base import State
 
+from tasks.host_call import host_call
 from tasks.manipulation import layout as L
 from tasks.manipulation.env_base import ManipulationEnv
 from tasks.manipulation import physics_np as P
@@ -104,7 +106,7 @@ class MujocoManipulationEnv(ManipulationEnv):
             jax.ShapeDtypeStruct((L.OBS_SIZE,), jnp.float32),
             jax.ShapeDtypeStruct((), jnp.float32),
         )
-        words, obs, success = jax.pure_callback(self._host_reset, shapes, seed, vmap_method="broadcast_all")
+        words, obs, success = host_call(self._host_reset, shapes, seed)
         zero = jnp.zeros((), jnp.float32)
         return State(
             pipeline_state=words,
@@ -123,14 +125,8 @@ class MujocoManipulationEnv(ManipulationEnv):
             jax.ShapeDtypeStruct((), jnp.float32),
             jax.ShapeDtypeStruct((), jnp.float32),
         )
-        words, obs, reward, success, bad = jax.pure_callback(
-            self._host_step,
-            shapes,
-            state.pipeline_state,
-            action.astype(jnp.float32),
-            state.info["steps"],
-            vmap_method="broadcast_all",
-        )
+        words, obs, reward, success, bad = host_call(
+            self._host_step, shapes, state.pipeline_state, action.astype(jnp.float32), state.info["steps"])
         steps = state.info["steps"] + 1
         done = (steps >= self.episode_length).astype(jnp.float32)
         info = dict(state.info, steps=steps, truncation=done, nan_reset=bad)
@@ -155,6 +151,6 @@ class MujocoManipulationEnv(ManipulationEnv):
 def make_mujoco_env(task_name: str, episode_length: int = L.DEFAULT_EPISODE_LENGTH, num_threads: int = 2,
                     **overrides: Any) -> MujocoManipulationEnv:
     """Brax-API env of task ``task_name`` (any of ``task_defs.names()``) on classic MuJoCo through
-    ``jax.pure_callback`` + multi-threaded ``mujoco.rollout``. ``overrides``: physics options of
+    ``host_call`` (a ``pure_callback``) + multi-threaded ``mujoco.rollout``. ``overrides``: physics options of
     ``physics_np.load_model`` (timestep, substeps, iterations, ls_iterations, ...)."""
     return MujocoManipulationEnv(task_name, episode_length=episode_length, num_threads=num_threads, **overrides)

@@ -6,7 +6,7 @@ shared by every physics backend:
 * ``MujocoTwin``: classic MuJoCo (C) stepped with NumPy alone: the JAX-free evaluation twin for
   exported policies;
 * ``mujoco_env`` (``physics="mujoco"``): the same ``step_states`` called through
-  ``jax.pure_callback`` over a whole env batch (multi-threaded ``mujoco.rollout``);
+  ``tasks.host_call`` (a ``pure_callback``) over a whole env batch (multi-threaded ``mujoco.rollout``);
 * ``mjx_env`` (``physics="mjx"`` / ``"warp"``): the array functions below (``observe``,
   ``action_to_ctrl``, ``clamp_windup``, ``sample_init``) are written against an array module
   ``xp`` and are called there with ``jax.numpy``.
