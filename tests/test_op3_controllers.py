@@ -105,3 +105,26 @@ def test_few_env_steps_mujoco():
     assert bool(jnp.all(jnp.isfinite(s.obs))) and float(jnp.sum(s.info["nan_reset"])) == 0
     phase, _ = jax.vmap(lambda o: C._decode_fsm(C.prev_action(o)))(s.obs)
     assert bool(jnp.all(phase >= 1))  # lying: in a get-up sequence
+
+
+def test_locomotion_skill_sets_and_training_run_defaults(tmp_path):
+    """training.run --task getup_and_walk / goal_scoring: the skill table names the OP3 controllers,
+    they load as scripted skills of the env's sizes, and the physics defaults to mujoco."""
+    from training import skill_library
+    from training.run import build_parser, prepare_new
+
+    assert skill_library.skill_names("getup_and_walk") == ["op3_getup", "op3_walk"]
+    assert skill_library.skill_names("goal_scoring") == ["op3_walk"]
+    with pytest.raises(ValueError, match="no distractor skills"):
+        skill_library.skill_names("getup_and_walk", "distractors")
+    skills = skill_library.load_skills(["op3_getup", "op3_walk"], "mujoco", "scripted", E.OBS_SIZE, C.NU)
+    for s, name in zip(skills, ["getup", "walk"]):
+        ref = C.get(name)(_obs(), jax.random.PRNGKey(0))
+        np.testing.assert_array_equal(s.apply(s.params, _obs(), jax.random.PRNGKey(0)), ref)
+    with pytest.raises(ValueError, match="no OP3 controller 'op3_run'"):
+        skill_library.load_skills(["op3_run"], "mujoco", "scripted")
+    with pytest.raises(ValueError, match="mix OP3 and arm controllers"):
+        skill_library.load_skills(["op3_walk", "reach_green"], "mujoco", "scripted")
+    argv = ["--task", "getup_and_walk", "--num_timesteps", "1000", "--out", str(tmp_path / "r")]
+    _, run, _, env = prepare_new(build_parser().parse_args(argv), argv, write=False)
+    assert (run.physics, run.skills, env.backend) == ("mujoco", ["op3_getup", "op3_walk"], "mujoco")

@@ -62,7 +62,8 @@ def build_parser():
 
     p = Parser(prog="python -m training.run", description=__doc__.splitlines()[0])
     p.add_argument("--task", default=None, help="task name (see tasks.names()); default lift")
-    p.add_argument("--physics", default=None, help=f"one of {', '.join(tasks.PHYSICS)}; default kinematic")
+    p.add_argument("--physics", default=None, help=f"one of {', '.join(tasks.PHYSICS)}; default kinematic "
+                   f"(mujoco for the OP3 tasks {', '.join(tasks.LOCOMOTION_TASKS)})")
     p.add_argument("--recipe", default=None, choices=list(RECIPES),
                    help="the learners' recipe (docs/scaling.md): cpu (32 envs, few samples per env step), parallel "
                         "(batches that grow with the envs, 32 updates per iteration), paper (App. B.3); "
@@ -180,6 +181,8 @@ def prepare_new(args, argv, num_devices: int = 1, write: bool = True):
     from training import skill_library
 
     a = {k: (getattr(args, k) if getattr(args, k) is not None else v) for k, v in DEFAULTS.items()}
+    if args.physics is None and a["task"] in tasks.LOCOMOTION_TASKS:
+        a["physics"] = "mujoco"  # the OP3 tasks' CPU fast path (no kinematic model)
     if a["task"] not in tasks.names():
         raise UsageError(f"unknown task {a['task']!r}; valid tasks: {', '.join(tasks.names())}")
     if a["physics"] not in tasks.PHYSICS:

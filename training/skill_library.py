@@ -39,6 +39,13 @@ TABLE["lift_green"] = TABLE["lift"]
 TABLE["lift_yellow"] = (["reach_yellow", "lift_arm_closed"], ["reach_green", "reach_blue", "open_fingers", "lift_arm_open"])
 TABLE["lift_blue"] = (["reach_blue", "lift_arm_closed"], ["reach_green", "reach_yellow", "open_fingers", "lift_arm_open"])
 TABLE["stack_green_on_yellow"] = TABLE["stack"]
+# Locomotion (paper Sec. 5): GetUpAndWalk composes the get-up and walking skills; GoalScoring adapts the
+# walking skill. The OP3 skills are the CEM-tuned controllers of tasks.locomotion.controllers
+# (checkpoints/op3/, docs/op3_skills.md), named after their dense skill tasks; the paper gives no
+# distractor skills for this domain.
+TABLE["getup_and_walk"] = (["op3_getup", "op3_walk"], [])
+TABLE["goal_scoring"] = (["op3_walk"], [])
+OP3_PREFIX = "op3_"
 
 SET_NAMES = ("useful", "useful+distractors", "distractors", "many_useful")
 SOURCES = ("scripted", "library")
@@ -57,6 +64,8 @@ def skill_names(task: str, which: str = "useful") -> list[str]:
     if which == "useful":
         return list(useful)
     if which == "distractors":
+        if not distract:
+            raise ValueError(f"task {task!r} has no distractor skills; valid skill sets for it: useful, many_useful")
         return list(distract)
     if which == "useful+distractors":
         return list(useful) + list(distract)
@@ -121,6 +130,18 @@ def load_skills(names, physics: str, source: str = "scripted", obs_size: int | N
     if source == "scripted":
         from tasks.manipulation import scripted
 
+        op3 = [n for n in names if n.startswith(OP3_PREFIX)]
+        if op3:  # the OP3 controllers (locomotion); no mix with the arm's controllers
+            from tasks.locomotion import controllers
+
+            if len(op3) != len(names):
+                raise ValueError(f"skills {', '.join(names)} mix OP3 and arm controllers")
+            valid = [OP3_PREFIX + c for c in controllers.names()]
+            for n in names:
+                if n not in valid:
+                    raise ValueError(f"no OP3 controller {n!r}; valid: {', '.join(valid)}")
+            return [Skill.from_fn(n, controllers.get(n[len(OP3_PREFIX):]), source="scripted",
+                                  path=str(controllers.CHECKPOINT_DIR / f"{n[len(OP3_PREFIX):]}.json")) for n in names]
         for n in names:
             base, seed = split_seed(n)
             if seed and base in scripted.names():
