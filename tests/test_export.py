@@ -126,6 +126,9 @@ def test_counters_run_skill_i_for_k_steps():
     acted = [int(policy(np.zeros((2, 4)))[0, 0]) for _ in range(9)]
     assert acted == [1, 1, 0, 0, 0, 1, 1, 0, 0]
     assert policy.usage.tolist() == [10, 8]  # env steps per skill (2 envs)
+    assert np.stack(policy.timeline).tolist() == [[0, 2] if a else [2, 0] for a in acted]  # envs per skill, per step
+    policy.reset(2)
+    assert policy.timeline == []
     policy.reset(2)  # a new episode is a decision whatever the counter (skill 0 had a step left)
     assert int(policy(np.zeros((2, 4)))[0, 0]) == 1 and policy.scheduler.calls == 5
 
@@ -179,10 +182,14 @@ def test_evaluate_scheduler_runs_scripted_skills(tmp_path, capsys):
     path = write_export(str(tmp_path), params, env=_env(), config=CONFIG, task="reach_green", physics="kinematic",
                         metadata={"skills": SKILLS, "seed": 0, "env_steps": 0})
     common = ["--task", "reach_green", "--physics", "kinematic", "--episodes", "3", "--episode_length", "20"]
-    evaluate.main(common + ["--policy", path + ":scheduler"])
+    evaluate.main(common + ["--policy", path + ":scheduler", "--usage_plot", str(tmp_path / "usage.png")])
     out_sched = capsys.readouterr().out.strip().splitlines()
+    assert out_sched.pop(-2) == f"usage plot: {tmp_path / 'usage.png'}" and (tmp_path / "usage.png").stat().st_size > 0
     evaluate.main(common + ["--policy", "scripted:reach_green"])
     out_scripted = capsys.readouterr().out.strip().splitlines()
+    with pytest.raises(SystemExit) as e:
+        evaluate.main(common + ["--policy", "scripted:reach_green", "--usage_plot", str(tmp_path / "u.png")])
+    assert e.value.code == 2 and "--usage_plot needs a ':scheduler' policy" in capsys.readouterr().err
     assert out_sched[-2].startswith("skill usage") and "reach_green=1.000" in out_sched[-2]
     assert out_sched[-1] == out_scripted[-1]
     assert float(out_sched[-1].split("return=")[1]) > 0.0

@@ -145,18 +145,32 @@ def run_episodes(envs, act, length: int) -> dict:
     return {"return": ret, "success": success}
 
 
+def scripted_controller(name: str):
+    """The scripted controller ``name`` as ``fn(obs [O], key) -> action [A]``: an arm controller of
+    ``tasks.manipulation.scripted`` or an OP3 controller (``op3_getup``, ``op3_walk``;
+    ``training.skill_library``)."""
+    from training.skill_library import load_skills
+
+    try:
+        skill = load_skills([name], "kinematic", "scripted")[0]
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    return lambda obs, key: skill.apply(skill.params, obs, key)
+
+
 def scripted_skills(names, seed: int):
     """The frozen skills of an export as ``fn(obs [B, O]) -> actions [N, B, A]`` (jitted JAX)."""
     import jax
 
-    from parallel_skills.skills import Skill, SkillSet
-    from tasks.manipulation import scripted
+    from parallel_skills.skills import SkillSet
+    from training.skill_library import load_skills
 
-    unknown = [n for n in names if n not in scripted.names()]
-    if unknown:
-        raise UsageError(f"the export's skills {unknown} are not scripted controllers; ':scheduler' runs scripted "
-                         f"skills (tasks.manipulation.scripted) and the new skill")
-    frozen = jax.jit(SkillSet([Skill.from_fn(n, scripted.get(n)) for n in names]).frozen_actions)
+    try:
+        skills = load_skills(list(names), "kinematic", "scripted")
+    except ValueError as e:
+        raise UsageError(f"the export's skills {list(names)} are not all scripted controllers ({e}); ':scheduler' "
+                         f"runs scripted skills and the new skill") from None
+    frozen = jax.jit(SkillSet(skills).frozen_actions)
     key, step = jax.random.PRNGKey(seed), [0]
 
     def actions(obs):
@@ -253,12 +267,26 @@ def main(argv=None):
     p.add_argument("--episodes", type=positive_int, default=64)
     p.add_argument("--episode_length", type=positive_int, default=None)
     p.add_argument("--seed", type=nonnegative_int, default=0)
+    p.add_argument("--usage_plot", default=None,
+                   help="with a ':scheduler' policy: write this image of the skill it runs at each step of the "
+                        "episode (share of episodes per skill over episode time)")
     args = p.parse_args(argv)
 
     def run():
+        if args.usage_plot and not args.policy.endswith(":scheduler"):
+            raise UsageError(f"--usage_plot needs a ':scheduler' policy (DIR:scheduler), not {args.policy!r}")
         result = evaluate_policy(args.task, args.physics, args.policy, episodes=args.episodes, seed=args.seed,
                                  episode_length=args.episode_length)
+        if args.usage_plot:
+            from training.plot import plot_usage_over_episode
+
+            timeline = result.pop("timeline")
+            plot_usage_over_episode(timeline, result.pop("skill_names"), args.usage_plot, result.pop("step_seconds"),
+                                    title=f"{args.task}: skill the scheduler runs ({args.episodes} episodes)")
+            result["lines"].append(f"usage plot: {args.usage_plot}")
         lines = result.pop("lines")
+        for k in ("timeline", "skill_names", "step_seconds"):
+            result.pop(k, None)
         success = float(np.mean(result["success"]))
         ret = float(np.mean(result["return"]))
         print(f"task={args.task} physics={args.physics} policy={args.policy} episodes={args.episodes}")
@@ -286,16 +314,13 @@ def evaluate_policy(task: str, physics: str, policy: str, episodes: int = 64, se
                               episode_length=episode_length)
     kind, target, suffix = parse_policy(policy, physics)
     if kind == "scripted":
-        from tasks.manipulation import scripted
-
-        if target not in scripted.names():
-            raise UsageError(f"unknown scripted policy {target!r}; valid: {', '.join(scripted.names())}")
+        scripted_controller(target)  # exists (UsageError naming the valid ones)
     export = None
     if kind == "export":
         from parallel_skills.numpy_policy import load_export
 
         export = load_export(target)
-    if physics == "mujoco" and kind != "scripted":
+    if physics == "mujoco" and kind != "scripted" and task not in tasks.LOCOMOTION_TASKS:
         result, lines = _evaluate_on_twin(args, kind, target, export, suffix)
     else:
         result, lines = _evaluate_on_jax_env(args, kind, target, export, suffix)
@@ -305,6 +330,12 @@ def evaluate_policy(task: str, physics: str, policy: str, episodes: int = 64, se
 def _usage_line(export, policy) -> list[str]:
     frac = policy.usage / max(policy.usage.sum(), 1)
     return ["skill usage (fraction of steps): " + " ".join(f"{n}={f:.3f}" for n, f in zip(export.skill_names, frac))]
+
+
+def _with_timeline(result: dict, export, policy, step_seconds) -> dict:
+    """``result`` plus the scheduler's skill per episode step (``timeline`` [T, N+1]), for --usage_plot."""
+    return dict(result, timeline=np.stack(policy.timeline), skill_names=list(export.skill_names),
+                step_seconds=step_seconds)
 
 
 def _evaluate_on_twin(args, kind, path, export, suffix):
@@ -319,7 +350,9 @@ def _evaluate_on_twin(args, kind, path, export, suffix):
         export.check_task_sizes(L.OBS_SIZE, L.ACTION_SIZE)
         policy = export.new_skill if suffix == "new_skill" else scheduler_policy(export, args.seed)
     result = run_episodes(TwinBatch(args.task, args.episodes, args.seed), policy, length)
-    return result, (_usage_line(export, policy) if isinstance(policy, ScheduledPolicy) else [])
+    if isinstance(policy, ScheduledPolicy):
+        return _with_timeline(result, export, policy, L.CONTROL_DT), _usage_line(export, policy)
+    return result, []
 
 
 def _evaluate_on_jax_env(args, kind, target, export, suffix):
@@ -340,16 +373,15 @@ def _evaluate_on_jax_env(args, kind, target, export, suffix):
         if suffix == "scheduler":
             policy = scheduler_policy(export, args.seed)
             envs = JaxEnvBatch(env, args.episodes, args.seed)
-            return run_episodes(envs, policy, int(env.episode_length)), _usage_line(export, policy)
+            result = run_episodes(envs, policy, int(env.episode_length))
+            return _with_timeline(result, export, policy, getattr(env, "dt", None)), _usage_line(export, policy)
         skill = jax_new_skill(export)
     elif kind == "skill":
         from parallel_skills.skills import Skill
 
         skill = Skill.load(target, obs_size=env.observation_size, action_size=env.action_size)
     if kind == "scripted":
-        from tasks.manipulation import scripted
-
-        policy = scripted.get(target)
+        policy = scripted_controller(target)
     else:
         policy = lambda obs, key: skill.apply(skill.params, obs, key)  # noqa: E731
 

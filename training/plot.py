@@ -234,6 +234,27 @@ def plot_usage(groups, out: str) -> str:
     return _save(fig, out)
 
 
+def plot_usage_over_episode(timeline, names, out: str, step_seconds: float | None = None, title: str = "") -> str:
+    """Which skill the scheduler runs at each step of an episode: ``timeline`` [T, N+1] = envs running
+    each skill at step t (``ScheduledPolicy.timeline``, episodes started together), drawn as the share
+    of episodes per skill over episode time (``step_seconds``: seconds per step for the x axis)."""
+    _require_matplotlib()
+    counts = np.asarray(timeline, np.float64)
+    share = counts / np.maximum(counts.sum(axis=1, keepdims=True), 1)
+    t = np.arange(counts.shape[0]) * (step_seconds or 1.0)
+    fig = _figure(7, 3.6)
+    ax = fig.subplots()
+    colors = ["black" if n.endswith("new_skill") else f"C{j % 10}" for j, n in enumerate(names)]
+    ax.stackplot(t, share.T, colors=colors, alpha=0.75, labels=list(names))
+    ax.set_xlabel("time in episode (s)" if step_seconds else "step of episode")
+    ax.set_ylabel("share of episodes")
+    ax.set_ylim(0, 1)
+    ax.set_xlim(t[0], t[-1] if t.size > 1 else 1)
+    ax.legend(fontsize=8, loc="upper right")
+    ax.set_title(title or f"skill the scheduler runs over the episode ({int(counts[0].sum())} episodes)", fontsize=10)
+    return _save(fig, out)
+
+
 def _require_matplotlib():
     try:
         import matplotlib  # noqa: F401
