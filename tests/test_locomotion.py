@@ -150,6 +150,16 @@ def test_prone_fraction_and_bank():
     assert all(np.asarray(S.StartSampler(0.0).sample(jax.random.PRNGKey(k))[2]) == 0 for k in range(3))
 
 
+def test_prone_bank_seed():
+    """Another bank seed: other settled prone states (a held-out set for a tuned get-up), the same sides."""
+    q0, _ = S.prone_bank()
+    q1, h1 = S.prone_bank((), 1)
+    assert q1.shape == q0.shape and not np.allclose(q0[:, :, 7:], q1[:, :, 7:])
+    np.testing.assert_array_equal(S.prone_bank((), S.BANK_SEED)[0], q0)
+    sampler = S.StartSampler(1.0, (), bank_seed=1)
+    np.testing.assert_array_equal(np.asarray(sampler.bank_qpos), q1.reshape(-1, M.NQ).astype(np.float32))
+
+
 # --- classic MuJoCo backend --------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def mujoco_env():

@@ -215,7 +215,7 @@ class LocomotionEnv(Env):
     arena = False
 
     def __init__(self, task_name: str, episode_length: int | None = None, prone_fraction: float | None = None,
-                 **physics_options: Any):
+                 prone_bank_seed: int = S.BANK_SEED, **physics_options: Any):
         self.task = get(task_name)
         self.task_name = task_name
         self.episode_length = int(self.task.episode_length if episode_length is None else episode_length)
@@ -227,7 +227,7 @@ class LocomotionEnv(Env):
         self.layout = M.layout(self.model_key)
         self.stand_pose = jnp.asarray(self.layout.stand_pose, jnp.float32)
         frac = self.task.prone_fraction if prone_fraction is None else float(prone_fraction)
-        self.sampler = S.StartSampler(frac, self.model_key)
+        self.sampler = S.StartSampler(frac, self.model_key, prone_bank_seed)
         self.features = _Kinematics(robot_model, self.layout)
         self.control_dt = self.substeps * float(self.mj_model.opt.timestep)
 
@@ -504,8 +504,9 @@ class MujocoLocomotionEnv(LocomotionEnv):
 
 def make_locomotion_env(task_name: str, physics: str = "mujoco", **overrides: Any) -> LocomotionEnv:
     """Brax-API env of locomotion task ``task_name`` on ``physics`` "mujoco" or "mjx". Overrides:
-    ``episode_length``, ``prone_fraction``, physics options of ``model.load_model`` (timestep,
-    substeps, iterations, ls_iterations) and, for mujoco, ``num_threads``."""
+    ``episode_length``, ``prone_fraction``, ``prone_bank_seed`` (the seed of the prone starts' bank),
+    physics options of ``model.load_model`` (timestep, substeps, iterations, ls_iterations) and, for
+    mujoco, ``num_threads``."""
     task = get(task_name)
     M.asset_root()  # the one-line error naming the extra, before anything else
     if task.reward == "goal_scoring":

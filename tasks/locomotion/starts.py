@@ -46,13 +46,14 @@ def _lowest_point(model, data, lay: M.Layout) -> float:
 
 
 @functools.lru_cache(maxsize=4)
-def prone_bank(model_key: tuple = ()) -> tuple[np.ndarray, np.ndarray]:
+def prone_bank(model_key: tuple = (), seed: int = BANK_SEED) -> tuple[np.ndarray, np.ndarray]:
     """(qpos [2, BANK_PER_SIDE, NQ], held joint targets [2, BANK_PER_SIDE, NU]): settled states lying
-    on the front ([0]) and on the back ([1]), at the origin, facing +x before the yaw turn."""
+    on the front ([0]) and on the back ([1]), at the origin, facing +x before the yaw turn. ``seed``
+    draws the joint noise (another seed: starts a skill tuned on the default bank has never seen)."""
     model, _ = M.load_model(**dict(model_key))
     lay = M.layout(model_key)
     data = mujoco.MjData(model)
-    rng = np.random.default_rng(BANK_SEED)
+    rng = np.random.default_rng(seed)
     qpos = np.zeros((2, BANK_PER_SIDE, M.NQ))
     hold = np.zeros((2, BANK_PER_SIDE, M.NU))
     steps = int(round(SETTLE_TIME / model.opt.timestep))
@@ -93,7 +94,7 @@ class StartSampler:
     """``sample(key) -> (qpos [NQ], hold [NU] joint targets, kind [] int32)`` in JAX; prone with
     probability ``prone_fraction`` (front / back equally likely), else standing."""
 
-    def __init__(self, prone_fraction: float, model_key: tuple = ()):
+    def __init__(self, prone_fraction: float, model_key: tuple = (), bank_seed: int = BANK_SEED):
         if not 0.0 <= prone_fraction <= 1.0:
             raise ValueError(f"prone_fraction must be in [0, 1], got {prone_fraction}")
         self.prone_fraction = float(prone_fraction)
@@ -101,7 +102,7 @@ class StartSampler:
         self.stand_qpos = jnp.asarray(lay.stand_qpos, jnp.float32)
         self.stand_pose = jnp.asarray(lay.stand_pose, jnp.float32)
         if self.prone_fraction > 0:
-            bank_q, bank_h = prone_bank(model_key)
+            bank_q, bank_h = prone_bank(model_key, int(bank_seed))
             self.bank_qpos = jnp.asarray(bank_q.reshape(-1, M.NQ), jnp.float32)
             self.bank_hold = jnp.asarray(bank_h.reshape(-1, M.NU), jnp.float32)
         else:

@@ -47,8 +47,10 @@ WALK_SPEED = 0.3
 STATE_DIR = Path("runs") / "op3_skills"
 
 
-def make_env(skill: str, episode_length: int | None = None):
+def make_env(skill: str, episode_length: int | None = None, bank_seed: int | None = None):
     kw = {} if episode_length is None else {"episode_length": episode_length}
+    if bank_seed is not None:
+        kw["prone_bank_seed"] = bank_seed
     return tasks.make(TASK[skill], physics="mujoco", num_threads=1, **kw)
 
 
@@ -256,7 +258,7 @@ def search(args):
 
 def evaluate(args):
     skill = args.skill
-    env = make_env(skill)
+    env = make_env(skill, bank_seed=args.bank_seed)
     steps = env.episode_length
     params = C.load(skill, args.params) if args.params or ckpt_path(skill).exists() else C.initial_params(skill)
     if args.init_params:
@@ -268,6 +270,8 @@ def evaluate(args):
     st = jax.device_get(st)
     wall = time.time() - t0
     res = summary(skill, st, steps, env.dt)
+    if args.bank_seed is not None:
+        res["prone_bank_seed"] = args.bank_seed
     res.update(episodes=args.episodes, seed=args.seed, episode_steps=steps, physics="mujoco", action_noise=args.noise,
                command=command_line(), wall_time_s=round(wall, 1))
     if skill == "getup":
@@ -278,7 +282,8 @@ def evaluate(args):
         res["success_back"] = float(ok[kinds == 2].mean()) if (kinds == 2).any() else None
     print(json.dumps(res, indent=1))
     if args.write:
-        write_ckpt(skill, params, {"evaluation" if args.noise == 0 else f"evaluation_noise_{args.noise:g}": res})
+        name = "evaluation" if args.noise == 0 else f"evaluation_noise_{args.noise:g}"
+        write_ckpt(skill, params, {name + ("" if args.bank_seed is None else f"_bank_seed_{args.bank_seed}"): res})
 
 
 def main(argv=None):
@@ -305,6 +310,9 @@ def main(argv=None):
     e.add_argument("--params", default=None, help="checkpoint json (default checkpoints/op3/<skill>.json)")
     e.add_argument("--init_params", action="store_true", help="evaluate the hand-made initial parameters")
     e.add_argument("--noise", type=float, default=0.0, help="Gaussian noise std on the joint actions (robustness)")
+    e.add_argument("--bank_seed", type=int, default=None,
+                   help="getup: draw the prone starts from a bank of this seed (default: the env's, which the search "
+                        "tuned on; another seed is a held-out check)")
     e.add_argument("--write", action="store_true", help="store the result in the checkpoint record")
     args = p.parse_args(sys.argv[1:] if argv is None else argv)
     {"search": search, "evaluate": evaluate}[args.cmd](args)
