@@ -21,7 +21,9 @@ The two interfaces (checked against Playground 0.2.0's ``locomotion/op3/{joystic
   (vx, vy, yaw rate; torso frame), qpos[7:] − default pose 20, last action 20] newest first, each
   entry with uniform noise ±0.05 (padding entries before the first steps are exact zeros); 20 ms
   steps (4 ms physics); targets ``default + 0.3·u``, no filter. Same scene, keyframe
-  (``stand_bent_knees`` = our stand pose), gains and solver settings.
+  (``stand_bent_knees`` = our stand pose), gains and solver settings. Its "last action" lags:
+  ``step`` builds the observation before it stores the action it applied, so the newest entry
+  after step t holds the action of step t − 1 (the action just applied is not observed).
 
 The adapter (``walk_skill``: a pure ``fn(obs [147], key) -> u [20]``, a ``Skill.from_fn``):
 
@@ -32,18 +34,27 @@ The adapter (``walk_skill``: a pure ``fn(obs [147], key) -> u [20]``, a ``Skill.
   heading turned since; the measurement reports the final yaw).
 * the 5-stacks from Playground's 3: zero padding entries take the newer entry (as our reset
   repeats the first observation); the two oldest proprio entries repeat the oldest available.
-* the filter lives in the adapter through the observed last action: ``a_f(prev) = u_last·0.3/(π/2)``
-  (the targets actually commanded), ``a_f = β·a_f(prev) + (1 − β)·a``, ``u = a_f·(π/2)/0.3``, not
-  clipped (the gait needs targets beyond Playground's nominal ±1 = ±0.3 rad; Playground only clips
-  the targets to the actuator range, as ours does). Raw past actions for the action stack are
-  recovered by inverting the filter over consecutive last actions (2 of the 5; the rest repeat the
-  oldest), their noise amplified ×5 (the walk skill does not read them).
+* the filter lives in the adapter: the newest last action Playground shows (u(t − 2) at step t)
+  gives the targets then, ``a_f(t − 2) = u·0.3/(π/2)``; the unobserved raw action of t − 1 is
+  recomputed: the walk skill on the previous observation (entries 1.. of this one, which the
+  stack holds with the same noise), its phase code estimated from the codes of t − 2 and t − 3
+  (their mean, the older one stepped on: equal without noise; averaging keeps the even and odd
+  steps from becoming two independent phase chains under noise). Then ``a_f(t − 1)``,
+  ``a_f(t) = β·a_f(t − 1) + (1 − β)·a``, ``u = a_f·(π/2)/0.3``, not clipped (the gait needs
+  targets beyond Playground's nominal ±1 = ±0.3 rad; Playground only clips targets to the
+  actuator range, as ours does). Without observation noise and at a 25 ms period this reproduces
+  our env's targets exactly (checked against a direct implementation of its filter); with noise the
+  recomputed a(t − 1) and a_f are approximate; after another skill acted at t − 1 (the scheduler
+  switched), a_f is off for a step or two. The action stack: a(t − 1) recomputed, a(t − 2),
+  a(t − 3) by inverting the filter over consecutive observed last actions (noise amplified ×5;
+  the walk skill does not read them), the rest repeat the oldest.
 * the gait phase the skill keeps in its head actions (code radius 0.01) would drown in
   Playground's ±0.05 observation noise: the head channels carry the raw code ×``HEAD_GAIN``
   (unfiltered), so the head moves by up to 0.3·``HEAD_GAIN``·0.01 = 0.15 rad (≈ 0.016 rad in ours).
 * timing (``retime``): the skill advances its phase by 2π·freq·25 ms per step; the adapter turns
   the decoded code back by 2π·freq·5 ms so the gait keeps its frequency at 20 ms steps, and uses
-  β = 0.8^(20/25) (the filter's time constant). The envelope ramps in per step (25 % faster).
+  β = 0.8^(20/25) (the filter's time constant). The envelope still ramps in over ramp_steps
+  steps (25 % sooner in time).
 * goal: direction = (vx, vy)/|·| (forward if 0), speed = |(vx, vy)|; the yaw rate is dropped. The
   shipped skill ignores the goal anyway: it always walks forward.
 
@@ -122,20 +133,23 @@ class Interface:
         cfg = env._config
         iface = Interface(np.asarray(env._default_pose, np.float32), float(cfg.action_scale), float(env.dt),
                           int(cfg.obs_history_size))
-        if env.observation_size != iface.history * PG_FRAME or env.action_size != len(iface.default_pose):
+        if (iface.history < 3 or env.observation_size != iface.history * PG_FRAME
+                or env.action_size != len(iface.default_pose)):
             raise ValueError(f"unexpected {ENV_NAME} sizes: obs {env.observation_size}, actions {env.action_size}")
         return iface
 
 
 # --- observation: Playground [147] -> this project [233] -------------------------------------------
 def frames(pg_obs, history: int):
-    """Playground's stacked entries [history, 49], newest first; an all-zero padding entry (before
-    the first steps) takes the newer entry's values."""
+    """Playground's stacked entries [history, 49], newest first, each all-zero padding entry
+    (before an episode's first steps) replaced by the newer entry; and which entries were
+    padding [history] (entry 1 at an episode's first step, entry 2 also at its second)."""
     f = pg_obs.reshape(history, PG_FRAME)
+    padded = jnp.all(f == 0.0, axis=-1)
     rows = [f[0]]
     for i in range(1, history):
-        rows.append(jnp.where(jnp.all(f[i] == 0.0), rows[-1], f[i]))
-    return jnp.stack(rows)
+        rows.append(jnp.where(padded[i], rows[-1], f[i]))
+    return jnp.stack(rows), padded
 
 
 def torso_gravity(up):
@@ -156,10 +170,10 @@ def filtered_of(u, iface: Interface):
     return u * (iface.action_scale / E.ACTION_SCALE)
 
 
-def raw_actions(u, iface: Interface, beta):
-    """Raw past actions [history − 1, 20] (newest first) from Playground's last actions u
-    [history, 20]: the filter inverted, a = (a_f − β·a_f(prev)) / (1 − β); head channels: the code
-    (u / HEAD_GAIN)."""
+def older_raw_actions(u, iface: Interface, beta):
+    """Raw actions [n − 1, 20] (newest first) from Playground's observed last actions u [n, 20]
+    (newest first): the filter inverted, a = (a_f − β·a_f(prev)) / (1 − β); head channels: the
+    code (u / HEAD_GAIN)."""
     af = filtered_of(u, iface)
     raw = (af[:-1] - beta * af[1:]) / (1.0 - beta)
     head = jnp.asarray(HEAD)
@@ -173,13 +187,14 @@ def goal_of_command(cmd):
     return jnp.concatenate([direction, speed[None]])
 
 
-def project_obs(pg_obs, iface: Interface, beta):
-    """This project's OP3 observation [233] from Playground's [147]."""
+def project_obs(f, iface: Interface, beta, newest_raw):
+    """This project's OP3 observation [233] from Playground entries ``f`` [n, 49] (newest first,
+    padding replaced) and the raw action of the last step ``newest_raw`` [20] (not observed in
+    Playground: its entries carry the actions of two and more steps back)."""
     from tasks.locomotion import env as E
 
-    f = frames(pg_obs, iface.history)
     proprio = jnp.concatenate([f[:, PG_JOINTS] + iface.default_pose, f[:, PG_GYRO], torso_gravity(f[:, PG_UP])], -1)
-    acts = raw_actions(f[:, PG_LAST_ACT], iface, beta)
+    acts = jnp.concatenate([newest_raw[None], older_raw_actions(f[:, PG_LAST_ACT], iface, beta)])
     obs = jnp.concatenate([pad_oldest(proprio, E.STACK).reshape(-1), pad_oldest(acts, E.STACK).reshape(-1),
                            goal_of_command(f[0, PG_CMD])])
     return obs.astype(jnp.float32)
@@ -196,8 +211,34 @@ def rotate_code(obs, angle):
     return obs.at[i + HEAD[0]].set(ca * c - sa * s).at[i + HEAD[1]].set(sa * c + ca * s)
 
 
+def step_code(code, advance, ramp):
+    """The walk skill's head code [2] one step on, as the skill steps it: phase φ (0 if the code
+    is ~0) turned by ``advance`` [rad], envelope r (radius / ``WALK_CODE``) raised by ``ramp`` up
+    to 1."""
+    from tasks.locomotion import controllers as C
+
+    r = jnp.linalg.norm(code) / C.WALK_CODE
+    phi = jnp.where(r > 1e-6, jnp.arctan2(code[1], code[0]), 0.0) + advance
+    return C.WALK_CODE * jnp.minimum(r + ramp, 1.0) * jnp.stack([jnp.cos(phi), jnp.sin(phi)])
+
+
+def phase_estimate(code2, code3, advance, ramp):
+    """The skill's head code [2] at t − 2: the mean of the code of t − 2 and that of t − 3 stepped
+    on (``step_code``). Equal to the former without noise; the mean keeps the two interleaved
+    chains (each step's phase would otherwise follow the one two steps back) one chain."""
+    return 0.5 * (code2 + step_code(code3, advance, ramp))
+
+
 def walk_skill(iface: Interface, params=None, settings=None):
     """The shipped walking skill for Playground: a pure ``fn(obs [147], key) -> u [20]``.
+
+    Playground's observation at step t holds the actions up to t − 2 (``step`` builds it before
+    storing the action it applied), so the action of step t − 1 is recomputed: the walk skill on
+    the previous observation (entries 1.. of this one, with the same noise), its phase estimated
+    from the actions of t − 2 and t − 3 (``phase_estimate``). Close to the action applied then while
+    the walk skill acted at t − 1 too (equal without observation noise); after another skill acted,
+    the filter state is off for a step or two. At an episode's first step the previous action is
+    the hold (0).
 
     ``settings`` (floats or traced scalars, default ``FAITHFUL``): ``retime`` 1 keeps the gait's
     frequency and the filter's time constant at Playground's control period, 0 steps them as at
@@ -212,14 +253,20 @@ def walk_skill(iface: Interface, params=None, settings=None):
     retimed_beta = E.FILTER_STRENGTH ** (iface.dt / C.CONTROL_DT)
     beta = s["retime"] * retimed_beta + (1.0 - s["retime"]) * E.FILTER_STRENGTH
     shift = -s["retime"] * 2.0 * math.pi * freq * (C.CONTROL_DT - iface.dt)
+    advance = 2.0 * math.pi * freq * C.CONTROL_DT + shift  # the phase step per Playground step
+    ramp = 1.0 / max(float(C.WALK_SPEC.unpack(params)["ramp_steps"]), 1.0)
     head = jnp.asarray(HEAD)
 
     def fn(obs, key):
-        ours = project_obs(obs, iface, beta)
-        a = controller(rotate_code(ours, shift), key)
-        a_prev = filtered_of(obs[PG_LAST_ACT], iface)  # the targets commanded now, as a_f
-        af = beta * a_prev + (1.0 - beta) * a
-        u = af * (E.ACTION_SCALE / iface.action_scale)
+        f, padded = frames(obs, iface.history)
+        older = older_raw_actions(f[:, PG_LAST_ACT], iface, beta)  # a(t-2), a(t-3)
+        # second step: the action of t - 3 is the start's hold, not a step of the skill's chain
+        code = jnp.where(padded[2], older[0, head], phase_estimate(older[0, head], older[1, head], advance, ramp))
+        a_prev = controller(rotate_code(project_obs(f[1:], iface, beta, older[0].at[head].set(code)), shift), key)
+        a_prev = jnp.where(padded[1], 0.0, a_prev)  # a(t-1); the hold at an episode's first step
+        a = controller(rotate_code(project_obs(f, iface, beta, a_prev), shift), key)
+        af_prev = beta * filtered_of(f[0, PG_LAST_ACT], iface) + (1.0 - beta) * a_prev  # targets commanded now
+        u = (beta * af_prev + (1.0 - beta) * a) * (E.ACTION_SCALE / iface.action_scale)
         u = u.at[head].set(HEAD_GAIN * a[head])
         u = jnp.where(s["clip"] > 0.5, jnp.clip(u, -1.0, 1.0), u)
         return jnp.where(s["zero"] > 0.5, jnp.zeros_like(u), u)
@@ -235,28 +282,31 @@ def _yaw(quat):
 
 def rollout(env, iface: Interface, settings: dict, num_envs: int, steps: int, seed: int):
     """Each variant (``settings``: name -> dict) alone for ``steps`` steps in ``num_envs`` envs
-    (resets from PRNGKey(seed), the same for every variant), one compile for all. Returns per-step
-    arrays [V, T, E]: done, forward velocity (torso frame), x, y, yaw, reward, max |u|."""
+    (resets from PRNGKey(seed), the same for every variant): one jitted step of all variants × envs,
+    looped in Python (compiles far faster than a scan here). Returns the variant names and
+    per-step arrays [V, T, E]: done, forward velocity (torso frame), x, y, yaw, reward, max |u|."""
     names = list(settings)
     stacked = {k: jnp.asarray([settings[n][k] for n in names], jnp.float32) for k in FAITHFUL}
     keys = jax.random.split(jax.random.PRNGKey(seed), num_envs)
+    both = lambda f: jax.vmap(jax.vmap(f))  # noqa: E731  over variants, then envs
 
-    def one_variant(s):
-        fn = jax.vmap(walk_skill(iface, settings=s))
-        state = jax.vmap(env.reset)(keys)
+    @jax.jit
+    def reset(stacked):
+        return jax.vmap(lambda _: jax.vmap(env.reset)(keys))(stacked["retime"])
 
-        def body(state, key):
-            u = fn(state.obs, jax.random.split(key, num_envs))
-            state = jax.vmap(env.step)(state, u)
-            d = state.data
-            rec = (state.done, jax.vmap(env.get_local_linvel)(d)[:, 0], d.qpos[:, 0], d.qpos[:, 1],
-                   _yaw(d.qpos[:, 3:7]), state.reward, jnp.max(jnp.abs(u), axis=-1))
-            return state, rec
+    @jax.jit
+    def step(state, stacked):
+        u = jax.vmap(lambda s, obs: jax.vmap(walk_skill(iface, settings=s))(obs, keys))(stacked, state.obs)
+        state = both(env.step)(state, u)
+        d = state.data
+        return state, (state.done, both(env.get_local_linvel)(d)[..., 0], d.qpos[..., 0], d.qpos[..., 1],
+                       _yaw(d.qpos[..., 3:7]), state.reward, jnp.max(jnp.abs(u), axis=-1))
 
-        return jax.lax.scan(body, state, jax.random.split(jax.random.PRNGKey(seed + 1), steps))[1]
-
-    out = jax.jit(jax.vmap(one_variant))(stacked)
-    return names, [np.asarray(x) for x in jax.device_get(out)]
+    state, recs = reset(stacked), []
+    for _ in range(steps):
+        state, rec = step(state, stacked)
+        recs.append(jax.device_get(rec))
+    return names, [np.swapaxes(np.stack([r[i] for r in recs]), 0, 1) for i in range(len(recs[0]))]
 
 
 def walking_figures(rec, dt: float) -> dict:
@@ -329,7 +379,7 @@ def train(env, iface: Interface, iterations: int, num_envs: int, unroll: int, ep
                "skill_histogram": {n: float(c) for n, c in zip(["op3_walk", "new_skill"], m["skill_histogram"])},
                "skill_steps": {n: float(c) for n, c in zip(["op3_walk", "new_skill"], m["skill_steps"])},
                **_scalars(m)}
-        row["all_losses_finite"] = bool(all(np.isfinite(v) for k, v in row.items() if "loss" in k))
+        row["all_losses_finite"] = bool(all(np.isfinite(v) for k, v in row.items() if k.endswith("_loss")))
         rows.append(row)
         print(json.dumps(row), flush=True)
     return rows
@@ -374,6 +424,25 @@ def run(args) -> dict:
     return summary
 
 
+def summary_lines(summary: dict) -> list[str]:
+    """A few human-readable lines of ``run``'s summary."""
+    lines = []
+    tr = summary.get("training")
+    if tr:
+        for r in tr["iterations"]:
+            losses = ", ".join(f"{k} {v:.4g}" for k, v in r.items() if k.endswith("_loss"))
+            lines.append(f"SkillS iteration {r['iteration']}: env steps {r['env_steps']}; {losses}; decisions "
+                         f"{r['skill_histogram']}; steps acted {r['skill_steps']}")
+        lines.append(f"training: all losses finite: {tr['all_losses_finite']} ({tr['wall_s']} s incl. compile)")
+    for name in VARIANTS if "walking" in summary else ():
+        w = summary["walking"][name]
+        lines.append(f"alone, {name}: {w['envs']} envs x {w['seconds']:g} s: fell {w['fell']}, forward velocity "
+                     f"{w['mean_forward_velocity']:.3f} m/s (torso frame), x velocity {w['mean_x_velocity']:.3f} m/s, "
+                     f"final |yaw| {w['final_abs_yaw_deg']:.1f} deg, max |u| {w['max_abs_action']:.2f}")
+    lines.append(f"wall time {summary['wall_s']} s")
+    return lines
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m training.experiments.playground_op3",
                                 description=__doc__.splitlines()[0])
@@ -389,8 +458,7 @@ def main(argv=None):
     args = p.parse_args(argv)
     args.argv = argv
     summary = run(args)
-    print(json.dumps({k: summary[k] for k in ("wall_s",)} | {"training_losses_finite": summary.get(
-        "training", {}).get("all_losses_finite")}), flush=True)
+    print("\n".join(summary_lines(summary)), flush=True)
     if args.out:
         with open(args.out, "w") as f:
             json.dump(summary, f, indent=1)
