@@ -228,7 +228,7 @@ class ScheduledPolicy:
         self.lengths = np.asarray(skill_lengths, np.int64)
         self.rng = rng  # None: greedy choices
         self.usage = np.zeros(0, np.int64)  # env steps each skill acted, summed over calls
-        self.timeline: list = []  # per call since the last reset: envs running each skill [N+1]
+        self.timeline: list = []  # per call since the last reset: the skill each env runs [B]
         self.reset(0)
 
     def reset(self, batch: int) -> None:
@@ -251,7 +251,7 @@ class ScheduledPolicy:
         self.c = np.where(decision, self.lengths[self.k_idx], self.c - 1)
         every = np.asarray(self.skills(obs))  # [N+1, B, A]
         counts = np.bincount(self.i, minlength=every.shape[0])
-        self.timeline.append(counts)
+        self.timeline.append(self.i.copy())
         self.usage = counts + (self.usage if self.usage.shape == counts.shape else 0)
         return every[self.i, np.arange(obs.shape[0])]
 

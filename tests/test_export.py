@@ -126,7 +126,7 @@ def test_counters_run_skill_i_for_k_steps():
     acted = [int(policy(np.zeros((2, 4)))[0, 0]) for _ in range(9)]
     assert acted == [1, 1, 0, 0, 0, 1, 1, 0, 0]
     assert policy.usage.tolist() == [10, 8]  # env steps per skill (2 envs)
-    assert np.stack(policy.timeline).tolist() == [[0, 2] if a else [2, 0] for a in acted]  # envs per skill, per step
+    assert np.stack(policy.timeline).tolist() == [[a, a] for a in acted]  # the skill each env runs, per step
     policy.reset(2)
     assert policy.timeline == []
     policy.reset(2)  # a new episode is a decision whatever the counter (skill 0 had a step left)

@@ -209,6 +209,22 @@ def test_plots_of_a_run_without_skill_runs_or_config(tmp_path):
     assert _is_png(curves) and _is_png(usage)
 
 
+def test_usage_over_episode_shares_per_start_kind(tmp_path):
+    """training.evaluate --usage_plot: the share of episodes running each skill at each step, one
+    panel per start kind (hand-computed)."""
+    from training.plot import plot_usage_over_episode, usage_shares
+
+    timeline = [[0, 0, 1, 2], [1, 0, 1, 1], [1, 1, 1, 1]]  # [T 3, B 4]: skill index per step and episode
+    groups = [0, 0, 1, 1]
+    shares = usage_shares(timeline, 3, groups)
+    np.testing.assert_allclose(shares[0], [[1, 0.5, 0], [0, 0.5, 1], [0, 0, 0]])
+    np.testing.assert_allclose(shares[1], [[0, 0, 0], [0.5, 1, 1], [0.5, 0, 0]])
+    np.testing.assert_allclose(usage_shares(timeline, 3)[0][1], [0.25, 0.75, 1.0])
+    out = plot_usage_over_episode(timeline, ["a", "b", "new_skill"], str(tmp_path / "u.png"), 0.025,
+                                  groups=groups, group_names={0: "standing", 1: "prone"})
+    assert os.path.getsize(out) > 0
+
+
 def test_plot_cli_bad_input(tmp_path, capsys):
     from training import plot
 

@@ -120,6 +120,8 @@ class JaxEnvBatch:
     def reset(self):
         k_reset, _ = self.jax.random.split(self.key)  # the reset states of ``rollout_episodes`` for this key
         self.state = self._reset(self.jax.random.split(k_reset, self.num))
+        start = self.state.info.get("start") if isinstance(self.state.info, dict) else None
+        self.start_kind = None if start is None else np.asarray(start)  # [B], envs with several kinds of start
         return np.asarray(self.state.obs)
 
     def step(self, actions):
@@ -282,10 +284,11 @@ def main(argv=None):
 
             timeline = result.pop("timeline")
             plot_usage_over_episode(timeline, result.pop("skill_names"), args.usage_plot, result.pop("step_seconds"),
-                                    title=f"{args.task}: skill the scheduler runs ({args.episodes} episodes)")
+                                    title=f"{args.task}: skill the scheduler runs", groups=result.pop("groups"),
+                                    group_names=result.pop("group_names"))
             result["lines"].append(f"usage plot: {args.usage_plot}")
         lines = result.pop("lines")
-        for k in ("timeline", "skill_names", "step_seconds"):
+        for k in ("timeline", "skill_names", "step_seconds", "groups", "group_names"):
             result.pop(k, None)
         success = float(np.mean(result["success"]))
         ret = float(np.mean(result["return"]))
@@ -332,10 +335,11 @@ def _usage_line(export, policy) -> list[str]:
     return ["skill usage (fraction of steps): " + " ".join(f"{n}={f:.3f}" for n, f in zip(export.skill_names, frac))]
 
 
-def _with_timeline(result: dict, export, policy, step_seconds) -> dict:
-    """``result`` plus the scheduler's skill per episode step (``timeline`` [T, N+1]), for --usage_plot."""
+def _with_timeline(result: dict, export, policy, step_seconds, groups=None, group_names=None) -> dict:
+    """``result`` plus the scheduler's skill per episode step (``timeline`` [T, B]) and the episodes'
+    start kinds (``groups`` [B] or None), for --usage_plot."""
     return dict(result, timeline=np.stack(policy.timeline), skill_names=list(export.skill_names),
-                step_seconds=step_seconds)
+                step_seconds=step_seconds, groups=groups, group_names=group_names)
 
 
 def _evaluate_on_twin(args, kind, path, export, suffix):
@@ -374,7 +378,8 @@ def _evaluate_on_jax_env(args, kind, target, export, suffix):
             policy = scheduler_policy(export, args.seed)
             envs = JaxEnvBatch(env, args.episodes, args.seed)
             result = run_episodes(envs, policy, int(env.episode_length))
-            return _with_timeline(result, export, policy, getattr(env, "dt", None)), _usage_line(export, policy)
+            return (_with_timeline(result, export, policy, getattr(env, "dt", None), envs.start_kind,
+                                   getattr(env, "START_NAMES", None)), _usage_line(export, policy))
         skill = jax_new_skill(export)
     elif kind == "skill":
         from parallel_skills.skills import Skill

@@ -234,24 +234,40 @@ def plot_usage(groups, out: str) -> str:
     return _save(fig, out)
 
 
-def plot_usage_over_episode(timeline, names, out: str, step_seconds: float | None = None, title: str = "") -> str:
-    """Which skill the scheduler runs at each step of an episode: ``timeline`` [T, N+1] = envs running
-    each skill at step t (``ScheduledPolicy.timeline``, episodes started together), drawn as the share
-    of episodes per skill over episode time (``step_seconds``: seconds per step for the x axis)."""
+def usage_shares(timeline, num_skills: int, groups=None) -> dict:
+    """{group value: share of that group's episodes running each skill at each step [N+1, T]} from
+    ``timeline`` [T, B] (skill index per episode and step) and ``groups`` [B] (None: one group 0)."""
+    idx = np.asarray(timeline, np.int64)
+    groups = np.zeros(idx.shape[1], np.int64) if groups is None else np.asarray(groups)
+    return {v: np.stack([(idx[:, groups == v] == j).mean(axis=1) for j in range(num_skills)])
+            for v in sorted(set(groups.tolist()))}
+
+
+def plot_usage_over_episode(timeline, names, out: str, step_seconds: float | None = None, title: str = "",
+                            groups=None, group_names: dict | None = None) -> str:
+    """Which skill the scheduler runs at each step of an episode: ``timeline`` [T, B] = the skill index
+    each of B episodes (started together) runs at step t (``ScheduledPolicy.timeline``), drawn as the
+    share of episodes per skill over episode time (``step_seconds``: seconds per step for the x axis).
+    ``groups`` [B] (e.g. the env's start kind): one panel per group value, titled by ``group_names``."""
     _require_matplotlib()
-    counts = np.asarray(timeline, np.float64)
-    share = counts / np.maximum(counts.sum(axis=1, keepdims=True), 1)
-    t = np.arange(counts.shape[0]) * (step_seconds or 1.0)
-    fig = _figure(7, 3.6)
-    ax = fig.subplots()
+    shares = usage_shares(timeline, len(names), groups)
+    values = list(shares)
+    counts = {v: int(np.sum(np.asarray(groups) == v)) if groups is not None else np.asarray(timeline).shape[1]
+              for v in values}
+    t = np.arange(np.asarray(timeline).shape[0]) * (step_seconds or 1.0)
+    fig = _figure(7, 2.2 + 1.6 * len(values))
+    axes = np.atleast_1d(fig.subplots(len(values), 1, sharex=True, squeeze=False)[:, 0])
     colors = ["black" if n.endswith("new_skill") else f"C{j % 10}" for j, n in enumerate(names)]
-    ax.stackplot(t, share.T, colors=colors, alpha=0.75, labels=list(names))
-    ax.set_xlabel("time in episode (s)" if step_seconds else "step of episode")
-    ax.set_ylabel("share of episodes")
-    ax.set_ylim(0, 1)
-    ax.set_xlim(t[0], t[-1] if t.size > 1 else 1)
-    ax.legend(fontsize=8, loc="upper right")
-    ax.set_title(title or f"skill the scheduler runs over the episode ({int(counts[0].sum())} episodes)", fontsize=10)
+    for ax, v in zip(axes, values):
+        ax.stackplot(t, shares[v], colors=colors, alpha=0.75, labels=list(names))
+        label = (group_names or {}).get(v, "" if len(values) == 1 else f"group {v}")
+        ax.set_title(f"{label} ({counts[v]} episodes)" if label else f"{counts[v]} episodes", fontsize=9)
+        ax.set_ylabel("share of episodes")
+        ax.set_ylim(0, 1)
+        ax.set_xlim(t[0], t[-1] if t.size > 1 else 1)
+    axes[0].legend(fontsize=8, loc="upper right")
+    axes[-1].set_xlabel("time in episode (s)" if step_seconds else "step of episode")
+    fig.suptitle(title or "skill the scheduler runs over the episode", fontsize=10)
     return _save(fig, out)
 
 

@@ -213,6 +213,7 @@ class LocomotionEnv(Env):
     kinematics are those of the robot-only model either way (the robot comes first in both)."""
 
     arena = False
+    START_NAMES = S.START_NAMES  # info["start"] values (training.evaluate --usage_plot panels)
 
     def __init__(self, task_name: str, episode_length: int | None = None, prone_fraction: float | None = None,
                  prone_bank_seed: int = S.BANK_SEED, **physics_options: Any):

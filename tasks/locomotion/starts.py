@@ -27,6 +27,7 @@ BANK_SEED = 0
 BANK_JOINT_NOISE = 0.3  # rad
 SETTLE_TIME = 1.0  # s
 START_STANDING, START_FRONT, START_BACK = 0, 1, 2
+START_NAMES = {START_STANDING: "standing start", START_FRONT: "lying on the front", START_BACK: "lying on the back"}
 
 
 def _lowest_point(model, data, lay: M.Layout) -> float:
