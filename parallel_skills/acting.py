@@ -113,13 +113,14 @@ class Actor:
 
     def actions(self, obs, nobs, new_params, i, k_a, k_s, greedy: bool):
         """Each env's action [B, A] from its running skill i [B]; collection noise (not greedy) on
-        the frozen skills' actions."""
+        the frozen skills' actions, those whose ``Skill.collection_noise`` is set."""
         mean, std = self.new_skill_apply(new_params, nobs)
         new_action = networks.deterministic_action(mean) if greedy else networks.sample_action(mean, std, k_a)
         action = self.skill_set.actions(new_action, obs, i, k_s)
         if self.skill_noise_std > 0 and not greedy:
             noise = self.skill_noise_std * jax.random.normal(jax.random.fold_in(k_s, 1), action.shape)
-            action = jnp.where((i != self.new_index)[:, None], jnp.clip(action + noise, -1.0, 1.0), action)
+            noisy = jnp.asarray(self.skill_set.collection_noise)[i]  # [B]; False for the new skill
+            action = jnp.where(noisy[:, None], jnp.clip(action + noise, -1.0, 1.0), action)
         return action
 
     def step(self, actor: ActorState, scheduler_params, new_params, normalizer, key, greedy: bool = False):

@@ -40,6 +40,10 @@ class Skill:
 
     ``arch`` names the network architecture (skills with equal non-empty ``arch`` and parameter
     shapes are stacked and vmapped together); ``metadata`` is the JSON sidecar content.
+    ``collection_noise``: whether the trainer adds its collection noise (``TrainConfig.
+    skill_noise_std``) to this skill's actions while collecting. False for controllers that keep
+    state in their own previous action, which noise would scramble (the OP3 controllers' phase
+    codes in the head actions, tasks/locomotion/controllers.py).
     """
 
     name: str
@@ -47,11 +51,14 @@ class Skill:
     params: Params = None
     arch: Optional[str] = None
     metadata: dict = dataclasses.field(default_factory=dict)
+    collection_noise: bool = True
 
     @staticmethod
-    def from_fn(name: str, fn: Callable[[jax.Array, jax.Array], jax.Array], **metadata) -> "Skill":
+    def from_fn(name: str, fn: Callable[[jax.Array, jax.Array], jax.Array], collection_noise: bool = True,
+                **metadata) -> "Skill":
         """Wrap a pure ``fn(obs, key) -> action`` (one observation) as a skill."""
-        return Skill(name=name, apply=_no_params_apply(fn), params=None, arch=None, metadata=dict(metadata))
+        return Skill(name=name, apply=_no_params_apply(fn), params=None, arch=None, metadata=dict(metadata),
+                     collection_noise=bool(collection_noise))
 
     @staticmethod
     def gaussian_mlp(name: str, params: Params, action_size: int, hidden: Sequence[int], **metadata) -> "Skill":
@@ -189,6 +196,12 @@ class SkillSet:
     @property
     def names(self) -> list[str]:
         return [s.name for s in self.skills]
+
+    @property
+    def collection_noise(self) -> np.ndarray:
+        """[N + 1] bool: which skills take the trainer's collection noise (the new skill, index N,
+        never: it samples from its own Gaussian)."""
+        return np.array([s.collection_noise for s in self.skills] + [False])
 
     def frozen_actions(self, obs: jax.Array, key: jax.Array) -> jax.Array:
         """Actions of every frozen skill for every env: [N, B, A]."""

@@ -121,6 +121,7 @@ def test_locomotion_skill_sets_and_training_run_defaults(tmp_path):
     for s, name in zip(skills, ["getup", "walk"]):
         ref = C.get(name)(_obs(), jax.random.PRNGKey(0))
         np.testing.assert_array_equal(s.apply(s.params, _obs(), jax.random.PRNGKey(0)), ref)
+        assert s.collection_noise is False  # their phase codes ride in the head actions
     with pytest.raises(ValueError, match="no OP3 controller 'op3_run'"):
         skill_library.load_skills(["op3_run"], "mujoco", "scripted")
     with pytest.raises(ValueError, match="mix OP3 and arm controllers"):

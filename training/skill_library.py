@@ -140,7 +140,9 @@ def load_skills(names, physics: str, source: str = "scripted", obs_size: int | N
             for n in names:
                 if n not in valid:
                     raise ValueError(f"no OP3 controller {n!r}; valid: {', '.join(valid)}")
-            return [Skill.from_fn(n, controllers.get(n[len(OP3_PREFIX):]), source="scripted",
+            # collection_noise=False: the controllers keep their phase in the head actions (noise would
+            # scramble it) and are tuned noise-free (docs/locomotion.md, "Collection noise").
+            return [Skill.from_fn(n, controllers.get(n[len(OP3_PREFIX):]), collection_noise=False, source="scripted",
                                   path=str(controllers.CHECKPOINT_DIR / f"{n[len(OP3_PREFIX):]}.json")) for n in names]
         for n in names:
             base, seed = split_seed(n)
