@@ -233,7 +233,7 @@ WALK_SPEC = Spec([
     ("hip_off", ()), ("knee_off", ()), ("ank_off", ()), ("hip_roll_off", ()), ("arm_swing", ()),
     ("k_hip_p", ()), ("k_hip_pd", ()), ("k_ank_p", ()), ("k_ank_pd", ()),
     ("k_hip_r", ()), ("k_hip_rd", ()), ("k_ank_r", ()), ("k_ank_rd", ()),
-    ("steer", ()),  # hip-yaw turn per rad of goal direction (0: ignore the goal direction)
+    ("steer", ()),  # hip-yaw turn per rad of goal direction (< 0: toward the goal; 0: ignore it)
     ("follow_speed", ()),  # > 0.5: stride scaled by goal speed / 0.7 (0: always walk)
 ])
 

@@ -71,7 +71,7 @@ def make_rollout(env, skill: str, steps: int, noise: float = 0.0):
         zero = jnp.zeros(b)
         carry0 = dict(s=s, first=jnp.full(b, steps + 1, jnp.int32), alive=jnp.ones(b, bool), t_alive=zero,
                       dist_alive=zero, dist=zero, rew=zero, stand_after=zero, stand_all=jnp.ones(b, bool),
-                      ok_after=jnp.ones(b, bool), nan=zero, up_mean=zero, rew_max=zero)
+                      ok_after=jnp.ones(b, bool), nan=zero, up_mean=zero, rew_max=zero, goal_fwd=zero)
 
         def body(c, t):
             s = c["s"]
@@ -97,7 +97,7 @@ def make_rollout(env, skill: str, steps: int, noise: float = 0.0):
                         rew=c["rew"] + s2.reward, stand_after=c["stand_after"] + (after & stand),
                         stand_all=c["stand_all"] & stand, ok_after=c["ok_after"] & (~after | stand),
                         nan=c["nan"] + s2.info["nan_reset"], up_mean=c["up_mean"] + (-g[:, 2]) / steps,
-                        rew_max=jnp.maximum(c["rew_max"], s2.reward)), None
+                        rew_max=jnp.maximum(c["rew_max"], s2.reward), goal_fwd=c["goal_fwd"] + fwd / steps), None
 
         c, _ = jax.lax.scan(body, carry0, jnp.arange(steps))
         c.pop("s")
@@ -151,7 +151,8 @@ def summary(skill: str, st: dict, steps: int, dt: float) -> dict:
     speed = st["dist"] / (steps * dt)
     ok = st["stand_all"] & (speed >= WALK_SPEED)
     return dict(success=float(ok.mean()), no_fall=float(st["stand_all"].mean()), mean_speed=float(speed.mean()),
-                min_speed=float(speed.min()), nan_resets=float(st["nan"].sum()))
+                min_speed=float(speed.min()), nan_resets=float(st["nan"].sum()),
+                heading_goal=float(st["goal_fwd"].mean()), episode_return=float(st["rew"].mean()))
 
 
 # --- checkpoint -----------------------------------------------------------------------------------
@@ -286,6 +287,49 @@ def evaluate(args):
         write_ckpt(skill, params, {name + ("" if args.bank_seed is None else f"_bank_seed_{args.bank_seed}"): res})
 
 
+def steer(args):
+    """Choose the walk's ``steer`` gain (its other parameters fixed): evaluate each of ``--values``
+    on ``--seed`` (success, speed, heading·goal = mean over the episode of cos(angle between the
+    torso heading and the goal direction), op3_walk return; and under ``--noise_check`` action
+    noise, reported only), take the value with the highest
+    heading·goal among those that keep success ≥ ``--min_success``, and check it on ``--heldout_seed``."""
+    env = make_env("walk")
+    steps = env.episode_length
+    base = C.load("walk")
+    spec = C.spec("walk")
+    rollout = make_rollout(env, "walk", steps)
+    noisy = make_rollout(env, "walk", steps, noise=args.noise_check) if args.noise_check > 0 else None
+
+    def run(value, seed, fn=rollout):
+        d = spec.unpack(base)
+        d["steer"] = np.float32(value)
+        prm = np.asarray(spec.pack(d), np.float32)
+        keys = jax.random.split(jax.random.PRNGKey(seed), args.episodes)
+        st = jax.device_get(fn(jnp.asarray(np.repeat(prm[None], args.episodes, 0)), keys, jax.random.PRNGKey(0)))
+        return prm, summary("walk", st, steps, env.dt)
+
+    t0 = time.time()
+    grid = []
+    for v in args.values:
+        _, res = run(v, args.seed)
+        grid.append(dict(steer=float(v), **res))
+        if noisy is not None:  # robustness, reported only: not part of the choice
+            grid[-1][f"noise_{args.noise_check:g}"] = run(v, args.seed, noisy)[1]
+        print(json.dumps(grid[-1]), flush=True)
+    ok = [g for g in grid if g["success"] >= args.min_success]
+    if not ok:
+        raise SystemExit(f"no steer value in {args.values} keeps success >= {args.min_success}")
+    best = max(ok, key=lambda g: g["heading_goal"])
+    prm, held = run(best["steer"], args.heldout_seed)
+    _, held0 = run(0.0, args.heldout_seed)
+    rec = dict(command=command_line(), episodes=args.episodes, seed=args.seed, grid=grid, chosen=best["steer"],
+               rule=f"highest heading_goal with success >= {args.min_success} on seed {args.seed}",
+               heldout=dict(seed=args.heldout_seed, chosen=held, steer_0=held0), wall_time_s=round(time.time() - t0, 1))
+    print(json.dumps(dict(chosen=best["steer"], heldout=rec["heldout"]), indent=1))
+    if args.write:
+        write_ckpt("walk", prm, {"steering": rec})
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m training.experiments.op3_skills", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -314,8 +358,18 @@ def main(argv=None):
                    help="getup: draw the prone starts from a bank of this seed (default: the env's, which the search "
                         "tuned on; another seed is a held-out check)")
     e.add_argument("--write", action="store_true", help="store the result in the checkpoint record")
+    t = sub.add_parser("steer", help="choose the walk's steer gain on a grid (docs/op3_skills.md)")
+    t.add_argument("--values", type=lambda x: [float(v) for v in x.split(",")],
+                   default=[0.0, -0.02, -0.03, -0.045, -0.06, -0.08, 0.03, 0.045])
+    t.add_argument("--episodes", type=int, default=64)
+    t.add_argument("--seed", type=int, default=12345)
+    t.add_argument("--heldout_seed", type=int, default=777)
+    t.add_argument("--min_success", type=float, default=0.95)
+    t.add_argument("--noise_check", type=float, default=0.05,
+                   help="also report each value under this joint-action noise std (0: skip)")
+    t.add_argument("--write", action="store_true", help="store the chosen gain and the grid in checkpoints/op3/walk.json")
     args = p.parse_args(sys.argv[1:] if argv is None else argv)
-    {"search": search, "evaluate": evaluate}[args.cmd](args)
+    {"search": search, "evaluate": evaluate, "steer": steer}[args.cmd](args)
 
 
 if __name__ == "__main__":
