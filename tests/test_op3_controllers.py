@@ -138,12 +138,9 @@ def test_shipped_walk_steers_toward_the_goal():
     from training.experiments import op3_skills as O
 
     env = O.make_env("walk", episode_length=240)
-    spec = C.spec("walk")
     shipped = C.load("walk")
-    assert float(spec.unpack(shipped)["steer"]) < 0
-    d = spec.unpack(shipped.copy())
-    d["steer"] = np.float32(0.0)
-    params = np.repeat(np.stack([shipped, spec.pack(d)]), 8, axis=0)
+    assert float(C.spec("walk").unpack(shipped)["steer"]) < 0
+    params = np.repeat(np.stack([shipped, O.with_steer(shipped, 0.0)]), 8, axis=0)
     keys = jnp.tile(jax.random.split(jax.random.PRNGKey(3), 8), (2, 1))
     st = jax.device_get(O.make_rollout(env, "walk", 240)(jnp.asarray(params), keys, jax.random.PRNGKey(0)))
     fwd = np.asarray(st["goal_fwd"]).reshape(2, 8).mean(1)

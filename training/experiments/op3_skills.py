@@ -287,6 +287,20 @@ def evaluate(args):
         write_ckpt(skill, params, {name + ("" if args.bank_seed is None else f"_bank_seed_{args.bank_seed}"): res})
 
 
+def with_steer(params, value: float) -> np.ndarray:
+    """The walk parameters ``params`` [D] with their ``steer`` gain replaced by ``value``."""
+    d = C.spec("walk").unpack(np.array(params, np.float32))
+    d["steer"] = np.float32(value)
+    return C.spec("walk").pack(d)
+
+
+def _floats(text: str) -> list:
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected numbers separated by commas, got {text!r}") from None
+
+
 def steer(args):
     """Choose the walk's ``steer`` gain (its other parameters fixed): evaluate each of ``--values``
     on ``--seed`` (success, speed, heading·goal = mean over the episode of cos(angle between the
@@ -296,14 +310,11 @@ def steer(args):
     env = make_env("walk")
     steps = env.episode_length
     base = C.load("walk")
-    spec = C.spec("walk")
     rollout = make_rollout(env, "walk", steps)
     noisy = make_rollout(env, "walk", steps, noise=args.noise_check) if args.noise_check > 0 else None
 
     def run(value, seed, fn=rollout):
-        d = spec.unpack(base)
-        d["steer"] = np.float32(value)
-        prm = np.asarray(spec.pack(d), np.float32)
+        prm = with_steer(base, value)
         keys = jax.random.split(jax.random.PRNGKey(seed), args.episodes)
         st = jax.device_get(fn(jnp.asarray(np.repeat(prm[None], args.episodes, 0)), keys, jax.random.PRNGKey(0)))
         return prm, summary("walk", st, steps, env.dt)
@@ -359,7 +370,7 @@ def main(argv=None):
                         "tuned on; another seed is a held-out check)")
     e.add_argument("--write", action="store_true", help="store the result in the checkpoint record")
     t = sub.add_parser("steer", help="choose the walk's steer gain on a grid (docs/op3_skills.md)")
-    t.add_argument("--values", type=lambda x: [float(v) for v in x.split(",")],
+    t.add_argument("--values", type=_floats,
                    default=[0.0, -0.02, -0.03, -0.045, -0.06, -0.08, 0.03, 0.045])
     t.add_argument("--episodes", type=int, default=64)
     t.add_argument("--seed", type=int, default=12345)
