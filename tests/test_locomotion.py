@@ -216,6 +216,20 @@ def test_goal_resampling_times():
     assert abs(float(jnp.mean(left)) - 5.0) < 0.3 and float(jnp.min(left)) >= 0.0
 
 
+def test_fixed_goal_speed():
+    """``goal_speed=`` fixes the target speed of every goal drawn (skill evaluation at the walking
+    command); other values are a one-line error."""
+    env = tasks.make("op3_walk", physics="mujoco", goal_speed=0.7, num_threads=1)
+    d, speed, left = jax.vmap(env._sample_goal)(jax.random.split(jax.random.PRNGKey(3), 64))
+    np.testing.assert_array_equal(np.asarray(speed), np.float32(0.7))
+    np.testing.assert_allclose(np.linalg.norm(np.asarray(d), axis=1), 1.0, atol=1e-6)
+    free = tasks.make("op3_walk", physics="mujoco", num_threads=1)
+    _, speed, _ = jax.vmap(free._sample_goal)(jax.random.split(jax.random.PRNGKey(3), 64))
+    assert 0 < float(jnp.mean(speed > 0)) < 1  # both speeds without the override
+    with pytest.raises(ValueError, match="goal_speed must be one of"):
+        tasks.make("op3_walk", physics="mujoco", goal_speed=0.5)
+
+
 # --- MJX backend -----------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def mjx_pair():

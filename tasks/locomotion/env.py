@@ -216,9 +216,13 @@ class LocomotionEnv(Env):
     START_NAMES = S.START_NAMES  # info["start"] values (training.evaluate --usage_plot panels)
 
     def __init__(self, task_name: str, episode_length: int | None = None, prone_fraction: float | None = None,
-                 prone_bank_seed: int = S.BANK_SEED, **physics_options: Any):
+                 prone_bank_seed: int = S.BANK_SEED, goal_speed: float | None = None, **physics_options: Any):
         self.task = get(task_name)
         self.task_name = task_name
+        if goal_speed is not None and float(goal_speed) not in GOAL_SPEEDS:
+            raise ValueError(f"goal_speed must be one of {GOAL_SPEEDS} (m/s) or None (both, equally likely), "
+                             f"got {goal_speed}")
+        self.goal_speed = None if goal_speed is None else float(goal_speed)  # None: sampled
         self.episode_length = int(self.task.episode_length if episode_length is None else episode_length)
         if self.episode_length < 1:
             raise ValueError(f"episode_length must be a positive integer, got {episode_length}")
@@ -256,10 +260,17 @@ class LocomotionEnv(Env):
         """The (filter) action whose joint targets are ``hold``."""
         return jnp.clip((hold - self.stand_pose) / ACTION_SCALE, -1.0, 1.0)
 
+    def _sample_goal(self, key):
+        """``sample_goal``, its speed replaced by the env's fixed ``goal_speed`` if one is set."""
+        goal_dir, goal_speed, goal_left = sample_goal(key)
+        if self.goal_speed is not None:
+            goal_speed = jnp.full_like(goal_speed, self.goal_speed)
+        return goal_dir, goal_speed, goal_left
+
     def _task_start(self, f: R.Features, hold, kind, key):
         """Task part of ``info`` at an episode start with features ``f``."""
         a0 = self.hold_action(hold)
-        goal_dir, goal_speed, goal_left = sample_goal(key)
+        goal_dir, goal_speed, goal_left = self._sample_goal(key)
         return {
             "a_filt": a0,
             "obs_hist": jnp.tile(proprio(f)[None], (STACK, 1)),
@@ -317,7 +328,7 @@ class LocomotionEnv(Env):
         reward, success, terms = self._reward(f, feet_vel, action, t)
         # Advance the task state: stacks, filter, feet, goal (resampled when its time is up).
         goal_left = t["goal_left"] - self.control_dt
-        new_dir, new_speed, new_left = sample_goal(k_goal)
+        new_dir, new_speed, new_left = self._sample_goal(k_goal)
         expired = goal_left <= 0.0
         nxt = dict(t, a_filt=a_filt, obs_hist=push(t["obs_hist"], proprio(f)), act_hist=push(t["act_hist"], action),
                    feet_xy=f.feet_xy, goal_dir=jnp.where(expired, new_dir, t["goal_dir"]),
@@ -506,7 +517,7 @@ class MujocoLocomotionEnv(LocomotionEnv):
 def make_locomotion_env(task_name: str, physics: str = "mujoco", **overrides: Any) -> LocomotionEnv:
     """Brax-API env of locomotion task ``task_name`` on ``physics`` "mujoco" or "mjx". Overrides:
     ``episode_length``, ``prone_fraction``, ``prone_bank_seed`` (the seed of the prone starts' bank),
-    physics options of ``model.load_model`` (timestep, substeps, iterations, ls_iterations) and, for
+    ``goal_speed`` (a fixed target speed, 0 or 0.7 m/s, instead of both equally likely), physics options of ``model.load_model`` (timestep, substeps, iterations, ls_iterations) and, for
     mujoco, ``num_threads``."""
     task = get(task_name)
     M.asset_root()  # the one-line error naming the extra, before anything else

@@ -47,10 +47,13 @@ WALK_SPEED = 0.3
 STATE_DIR = Path("runs") / "op3_skills"
 
 
-def make_env(skill: str, episode_length: int | None = None, bank_seed: int | None = None):
+def make_env(skill: str, episode_length: int | None = None, bank_seed: int | None = None,
+             goal_speed: float | None = None):
     kw = {} if episode_length is None else {"episode_length": episode_length}
     if bank_seed is not None:
         kw["prone_bank_seed"] = bank_seed
+    if goal_speed is not None:
+        kw["goal_speed"] = goal_speed
     return tasks.make(TASK[skill], physics="mujoco", num_threads=1, **kw)
 
 
@@ -124,7 +127,10 @@ def bank_keys(env, per_entry: int, seed: int):
 
 
 # --- fitness -----------------------------------------------------------------------------------------
-def fitness(skill: str, st: dict, steps: int, dt: float) -> np.ndarray:
+def fitness(skill: str, st: dict, steps: int, dt: float, kind: str = "speed") -> np.ndarray:
+    """Per-episode search objective. get-up: success, speed of it, staying up (+ shaping). walk,
+    ``kind`` "speed": time standing, forward speed (capped at 0.4 m/s), no fall; "return": time
+    standing, the op3_walk return per step (R_walk for the goals drawn), no fall."""
     st = {k: np.asarray(v) for k, v in st.items()}
     if skill == "getup":
         ok = st["first"] <= steps
@@ -134,6 +140,8 @@ def fitness(skill: str, st: dict, steps: int, dt: float) -> np.ndarray:
         # op3_getup reward (height x uprightness) reached
         return 2.0 * ok + early + stay + st["rew"] / steps + 0.5 * st["up_mean"] + st["rew_max"]
     alive = st["t_alive"] / steps
+    if kind == "return":
+        return alive + st["rew"] / steps + 2.0 * st["stand_all"]
     speed = st["dist_alive"] / (steps * dt)
     return alive + 3.0 * np.minimum(speed, 0.4) + 2.0 * st["stand_all"]
 
@@ -160,7 +168,12 @@ def ckpt_path(skill: str) -> Path:
     return C.CHECKPOINT_DIR / f"{skill}.json"
 
 
-def write_ckpt(skill: str, params, record: dict):
+def write_ckpt(skill: str, params, record: dict, key: str | None = None):
+    """Write ``params`` and merge ``record`` into the checkpoint's record (``key``: rename the
+    record's single entry, e.g. a search stage's name)."""
+    if key is not None:
+        (value,) = record.values()
+        record = {key: value}
     path = ckpt_path(skill)
     path.parent.mkdir(parents=True, exist_ok=True)
     old = json.loads(path.read_text()) if path.exists() else {}
@@ -177,7 +190,10 @@ def command_line() -> str:
     return "python -m training.experiments.op3_skills " + " ".join(shlex.quote(a) for a in sys.argv[1:])
 
 
-def init_std(skill: str) -> np.ndarray:
+def init_std(skill: str, fitness_kind: str = "speed") -> np.ndarray:
+    """Initial CEM std per parameter (0: fixed). The walk's ``steer`` is searched (0.01) only for
+    the "return" fitness, whose R_orient term rewards turning toward the goal; ``follow_speed``
+    (a switch) never."""
     spec = C.spec(skill)
     d = {}
     if skill == "getup":
@@ -187,7 +203,7 @@ def init_std(skill: str) -> np.ndarray:
         d = dict(freq=0.25, ramp_steps=8.0, lift=0.06, stride=0.05, hip_sway=0.05, ank_sway=0.05, sway_phase=0.6,
                  lift_phase=0.4, hip_off=0.06, knee_off=0.06, ank_off=0.06, hip_roll_off=0.04, arm_swing=0.08,
                  k_hip_p=0.2, k_hip_pd=0.03, k_ank_p=0.2, k_ank_pd=0.03, k_hip_r=0.2, k_hip_rd=0.03, k_ank_r=0.2,
-                 k_ank_rd=0.03, steer=0.0, follow_speed=0.0)
+                 k_ank_rd=0.03, steer=0.01 if fitness_kind == "return" else 0.0, follow_speed=0.0)
     return spec.pack(d)
 
 
@@ -209,7 +225,9 @@ def search(args):
         print(f"resumed at generation {gen0}, best {best_f:.3f}")
     else:
         mu = C.load(skill) if args.init == "checkpoint" else C.initial_params(skill)
-        sd = init_std(skill) * args.std_scale
+        if skill == "walk" and args.follow_speed:
+            mu = with_param(mu, "follow_speed", 1.0)
+        sd = init_std(skill, args.fitness) * args.std_scale
         gen0, best_f, best, env_steps, wall0 = 0, -np.inf, mu.copy(), 0, 0.0
     if skill == "getup":
         bank = bank_keys(env, 2, args.seed).reshape(2, S.BANK_PER_SIDE, 2, 2)  # [side, entry, copy, key]
@@ -231,7 +249,7 @@ def search(args):
             keys = np.asarray(jax.random.split(jax.random.PRNGKey(args.seed * 1000 + gen), n_ep))
         params = np.repeat(cands, n_ep, axis=0)
         st = rollout(jnp.asarray(params), jnp.tile(jnp.asarray(keys), (pop, 1)), jax.random.PRNGKey(gen))
-        f = fitness(skill, st, steps, dt).reshape(pop, n_ep)
+        f = fitness(skill, st, steps, dt, args.fitness).reshape(pop, n_ep)
         fm = f.mean(1)
         env_steps += pop * n_ep * steps
         order = np.argsort(-fm)
@@ -240,7 +258,7 @@ def search(args):
         w = w / w.sum()
         new_mu = (w[:, None] * elite).sum(0)
         new_sd = np.sqrt((w[:, None] * (elite - mu[None]) ** 2).sum(0))
-        sd = np.maximum(args.smooth * sd + (1 - args.smooth) * new_sd, init_std(skill) * args.min_std)
+        sd = np.maximum(args.smooth * sd + (1 - args.smooth) * new_sd, init_std(skill, args.fitness) * args.min_std)
         mu = new_mu.astype(np.float32)
         summ = summary(skill, {k: np.asarray(v).reshape(pop, n_ep)[order[0]] for k, v in st.items()}, steps, dt)
         summ_mean = summary(skill, {k: np.asarray(v).reshape(pop, n_ep)[0] for k, v in st.items()}, steps, dt)
@@ -254,12 +272,13 @@ def search(args):
             command=command_line(), method="CEM (diagonal Gaussian, log-rank elite weights)", generations=gen + 1,
             pop=args.pop, elite=n_elite, episodes_per_candidate=n_ep, episode_steps=steps,
             action_noise=args.noise if skill == "walk" else 0.0, env_steps=int(env_steps), wall_time_s=round(wall, 1),
-            seed=args.seed, best_fitness=best_f, physics="mujoco", search_episodes_summary_of_best=summ)})
+            seed=args.seed, best_fitness=best_f, fitness=args.fitness, physics="mujoco",
+            search_episodes_summary_of_best=summ)}, key=args.record)
 
 
 def evaluate(args):
     skill = args.skill
-    env = make_env(skill, bank_seed=args.bank_seed)
+    env = make_env(skill, bank_seed=args.bank_seed, goal_speed=args.goal_speed)
     steps = env.episode_length
     params = C.load(skill, args.params) if args.params or ckpt_path(skill).exists() else C.initial_params(skill)
     if args.init_params:
@@ -273,6 +292,8 @@ def evaluate(args):
     res = summary(skill, st, steps, env.dt)
     if args.bank_seed is not None:
         res["prone_bank_seed"] = args.bank_seed
+    if args.goal_speed is not None:
+        res["goal_speed"] = args.goal_speed
     res.update(episodes=args.episodes, seed=args.seed, episode_steps=steps, physics="mujoco", action_noise=args.noise,
                command=command_line(), wall_time_s=round(wall, 1))
     if skill == "getup":
@@ -284,14 +305,21 @@ def evaluate(args):
     print(json.dumps(res, indent=1))
     if args.write:
         name = "evaluation" if args.noise == 0 else f"evaluation_noise_{args.noise:g}"
-        write_ckpt(skill, params, {name + ("" if args.bank_seed is None else f"_bank_seed_{args.bank_seed}"): res})
+        name += "" if args.bank_seed is None else f"_bank_seed_{args.bank_seed}"
+        name += "" if args.goal_speed is None else f"_goal_speed_{args.goal_speed:g}"
+        write_ckpt(skill, params, {name: res})
+
+
+def with_param(params, name: str, value: float) -> np.ndarray:
+    """The walk parameters ``params`` [D] with parameter ``name`` replaced by ``value``."""
+    d = C.spec("walk").unpack(np.array(params, np.float32))
+    d[name] = np.float32(value)
+    return C.spec("walk").pack(d)
 
 
 def with_steer(params, value: float) -> np.ndarray:
     """The walk parameters ``params`` [D] with their ``steer`` gain replaced by ``value``."""
-    d = C.spec("walk").unpack(np.array(params, np.float32))
-    d["steer"] = np.float32(value)
-    return C.spec("walk").pack(d)
+    return with_param(params, "steer", value)
 
 
 def _floats(text: str) -> list:
@@ -356,6 +384,11 @@ def main(argv=None):
     s.add_argument("--min_std", type=float, default=0.05, help="floor of the search std, × its initial value")
     s.add_argument("--smooth", type=float, default=0.2, help="weight of the old std")
     s.add_argument("--init", choices=("hand", "checkpoint"), default="hand")
+    s.add_argument("--fitness", choices=("speed", "return"), default="speed",
+                   help="walk: forward speed (stages 1-2) or the op3_walk return, R_walk (stage 4)")
+    s.add_argument("--follow_speed", action="store_true",
+                   help="walk: start the search with follow_speed on (stride scaled by the goal speed; kept fixed)")
+    s.add_argument("--record", default="search", help="name of the search record in the checkpoint json")
     s.add_argument("--resume", action="store_true")
     s.add_argument("--seed", type=int, default=0)
     e = sub.add_parser("evaluate")
@@ -368,6 +401,8 @@ def main(argv=None):
     e.add_argument("--bank_seed", type=int, default=None,
                    help="getup: draw the prone starts from a bank of this seed (default: the env's, which the search "
                         "tuned on; another seed is a held-out check)")
+    e.add_argument("--goal_speed", type=float, default=None,
+                   help="a fixed target speed (0 or 0.7 m/s) instead of both equally likely")
     e.add_argument("--write", action="store_true", help="store the result in the checkpoint record")
     t = sub.add_parser("steer", help="choose the walk's steer gain on a grid (docs/op3_skills.md)")
     t.add_argument("--values", type=_floats,
