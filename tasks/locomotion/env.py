@@ -517,8 +517,9 @@ class MujocoLocomotionEnv(LocomotionEnv):
 def make_locomotion_env(task_name: str, physics: str = "mujoco", **overrides: Any) -> LocomotionEnv:
     """Brax-API env of locomotion task ``task_name`` on ``physics`` "mujoco" or "mjx". Overrides:
     ``episode_length``, ``prone_fraction``, ``prone_bank_seed`` (the seed of the prone starts' bank),
-    ``goal_speed`` (a fixed target speed, 0 or 0.7 m/s, instead of both equally likely), physics options of ``model.load_model`` (timestep, substeps, iterations, ls_iterations) and, for
-    mujoco, ``num_threads``."""
+    ``goal_speed`` (a fixed target speed, 0 or 0.7 m/s, instead of both equally likely), physics
+    options of ``model.load_model`` (timestep, substeps, iterations, ls_iterations) and, for mujoco,
+    ``num_threads``."""
     task = get(task_name)
     M.asset_root()  # the one-line error naming the extra, before anything else
     if task.reward == "goal_scoring":
