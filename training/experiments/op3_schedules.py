@@ -1,5 +1,5 @@
 """Fixed schedules of the two OP3 skills on GetUpAndWalk: what a scheduler could earn with them, and
-what handing over between them costs (docs/locomotion.md, "Why the scheduler stands").
+what handing over between them costs (docs/locomotion.md, "Why the schedulers stood with the stage-3 walk").
 
     python -m training.experiments.op3_schedules getup walk getup_then_walk walk_then_getup:103 random:10
 

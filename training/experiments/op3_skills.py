@@ -169,12 +169,7 @@ def ckpt_path(skill: str) -> Path:
     return C.CHECKPOINT_DIR / f"{skill}.json"
 
 
-def write_ckpt(skill: str, params, record: dict, key: str | None = None):
-    """Write ``params`` and merge ``record`` into the checkpoint's record (``key``: rename the
-    record's single entry, e.g. a search stage's name)."""
-    if key is not None:
-        (value,) = record.values()
-        record = {key: value}
+def write_ckpt(skill: str, params, record: dict):
     path = ckpt_path(skill)
     path.parent.mkdir(parents=True, exist_ok=True)
     old = json.loads(path.read_text()) if path.exists() else {}
@@ -269,12 +264,12 @@ def search(args):
         print(f"gen {gen:3d} best {fm[order[0]]:.3f} mean-cand {fm[0]:.3f} median {np.median(fm):.3f} "
               f"best {summ} | mean {summ_mean} | {env_steps / 1e6:.2f}M steps {wall:.0f}s", flush=True)
         np.savez(state_path, mu=mu, sd=sd, gen=gen + 1, best_f=best_f, best=best, env_steps=env_steps, wall=wall)
-        write_ckpt(skill, best, {"search": dict(
+        write_ckpt(skill, best, {args.record: dict(
             command=command_line(), method="CEM (diagonal Gaussian, log-rank elite weights)", generations=gen + 1,
             pop=args.pop, elite=n_elite, episodes_per_candidate=n_ep, episode_steps=steps,
             action_noise=args.noise if skill == "walk" else 0.0, env_steps=int(env_steps), wall_time_s=round(wall, 1),
             seed=args.seed, best_fitness=best_f, fitness=args.fitness, physics="mujoco",
-            search_episodes_summary_of_best=summ)}, key=args.record)
+            search_episodes_summary_of_best=summ)})
 
 
 def evaluate(args):
@@ -402,8 +397,8 @@ def main(argv=None):
     e.add_argument("--bank_seed", type=int, default=None,
                    help="getup: draw the prone starts from a bank of this seed (default: the env's, which the search "
                         "tuned on; another seed is a held-out check)")
-    e.add_argument("--goal_speed", type=float, default=None,
-                   help="a fixed target speed (0 or 0.7 m/s) instead of both equally likely")
+    e.add_argument("--goal_speed", type=float, choices=E.GOAL_SPEEDS, default=None,
+                   help="a fixed target speed (m/s) instead of both equally likely")
     e.add_argument("--write", action="store_true", help="store the result in the checkpoint record")
     t = sub.add_parser("steer", help="choose the walk's steer gain on a grid (docs/op3_skills.md)")
     t.add_argument("--values", type=_floats,
