@@ -290,3 +290,21 @@ def test_train_skill_end_to_end_tiny(tmp_path, capsys):
     assert meta["trained_with"] in ("bc", "bc+crr") and meta["training"]["crr"]["env_steps"] == 100 and meta["training"]["crr"]["num_envs"] == 4
     assert meta["training"]["bc"]["updates"] == 3 and meta["success_episodes"] == 2
     Skill.load(str(out), obs_size=L.OBS_SIZE, action_size=L.ACTION_SIZE)
+
+
+def test_stack_yellow_on_blue_table_is_stacks_with_the_cubes_renamed():
+    """The chain stage that trains triple stack's ``stack_yellow_on_blue`` uses stack's skill table
+    with green -> yellow, yellow -> blue, blue -> green, and every name it lists is a scripted skill."""
+    from tasks.manipulation import scripted
+
+    rename = {"green": "yellow", "yellow": "blue", "blue": "green"}
+
+    def renamed(name):
+        return "_".join(rename.get(part, part) for part in name.split("_"))
+
+    for which in ("useful", "distractors"):
+        stack = skill_library.skill_names("stack", which)
+        yb = skill_library.skill_names("stack_yellow_on_blue", which)
+        assert yb == [renamed(n) for n in stack] if which == "useful" else sorted(yb) == sorted(map(renamed, stack))
+        assert set(yb) <= set(scripted.names())
+    assert "stack_yellow_on_blue" in skill_library.skill_names("triple_stack", "useful")

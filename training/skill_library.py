@@ -39,6 +39,12 @@ TABLE["lift_green"] = TABLE["lift"]
 TABLE["lift_yellow"] = (["reach_yellow", "lift_arm_closed"], ["reach_green", "reach_blue", "open_fingers", "lift_arm_open"])
 TABLE["lift_blue"] = (["reach_blue", "lift_arm_closed"], ["reach_green", "reach_yellow", "open_fingers", "lift_arm_open"])
 TABLE["stack_green_on_yellow"] = TABLE["stack"]
+# Stack yellow on blue (the chain's stage for triple stack's useful skill ``stack_yellow_on_blue``):
+# stack's table with the cubes renamed, green -> yellow, yellow -> blue (reach / lift / hover of the
+# moved cube; the other cubes' reach and lift skills are distractors).
+TABLE["stack_yellow_on_blue"] = (["reach_yellow", "lift_arm_closed", "lift_yellow", "hover_yellow_on_blue"],
+                                 ["reach_green", "reach_blue", "open_fingers", "lift_arm_open", "lift_green",
+                                  "lift_blue"])
 # Locomotion (paper Sec. 5): GetUpAndWalk composes the get-up and walking skills; GoalScoring adapts the
 # walking skill. The OP3 skills are the CEM-tuned controllers of tasks.locomotion.controllers
 # (checkpoints/op3/, docs/op3_skills.md), named after their dense skill tasks; the paper gives no
