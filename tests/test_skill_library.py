@@ -308,3 +308,21 @@ def test_stack_yellow_on_blue_table_is_stacks_with_the_cubes_renamed():
         assert yb == [renamed(n) for n in stack] if which == "useful" else sorted(yb) == sorted(map(renamed, stack))
         assert set(yb) <= set(scripted.names())
     assert "stack_yellow_on_blue" in skill_library.skill_names("triple_stack", "useful")
+
+
+def test_a_missing_library_skill_names_the_command_that_makes_it(tmp_path):
+    """Dense-reward skills: train_skill; higher skills (a SkillS run's new skill): the chain stages
+    that train it, then ship, which names a seed-K chain's skill NAME.sK (as many_useful loads it)."""
+    from training.ship import library_file_name
+
+    with pytest.raises(ValueError, match=r"train it: python -m training.train_skill --skill reach_green "
+                                         r"--physics kinematic --seed 1 "):
+        skill_library.load_skills(["reach_green.s1"], "kinematic", "library", root=str(tmp_path))
+    with pytest.raises(ValueError, match=r"python -m training.chain --physics kinematic --seed 2 --stages "
+                                         r"lift_yellow,stack_yellow_on_blue --out runs/chain_stack_yellow_on_blue_s2, "
+                                         r"then python -m training.ship --chain runs/chain_stack_yellow_on_blue_s2 "
+                                         r"--stage stack_yellow_on_blue"):
+        skill_library.load_skills(["stack_yellow_on_blue.s2"], "kinematic", "library", root=str(tmp_path))
+    assert "--stages lift_green --out" in skill_library.how_to_make("lift_green", 0, "kinematic")
+    assert [library_file_name(s, k) for s, k in [("stack", 0), ("lift_green", 1), ("stack_yellow_on_blue", 2)]] == \
+        ["stack_green_on_yellow", "lift_green.s1", "stack_yellow_on_blue.s2"]

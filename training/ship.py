@@ -5,7 +5,8 @@ library, lift X and stack X on Y, are outputs of SkillS runs, as in the paper's 
 
 Copies ``CHAIN/skills/STAGE.npz`` byte for byte to ``checkpoints/<library>/NAME.npz`` (``library``
 = ``skill_library.library_dir(physics)``; NAME is the stage's full task name, as skill tables use it:
-``stack`` ships as ``stack_green_on_yellow``), measures the shipped file with ``training.evaluate``
+``stack`` ships as ``stack_green_on_yellow``; a chain of ``--seed K`` > 0 ships ``NAME.sK``, as the
+``many_useful`` skill set names seeds), measures the shipped file with ``training.evaluate``
 (``--episodes`` 64, ``--seed`` 0) and writes the library sidecar: sizes and network, the chain
 command and the stage's ``training.run`` command, the skills it was trained with, its env steps and
 training wall time (summed over resumes), and that success with the command that reproduces it.
@@ -40,6 +41,15 @@ def build_parser():
                    help=f"refuse a skill below this success (default {DEFAULT_MIN_SUCCESS}, MJX library 0.7)")
     p.add_argument("--root", default=None, help="library root (default: the repository's checkpoints/)")
     return p
+
+
+def library_file_name(stage: str, seed: int) -> str:
+    """The library file name (without .npz) of a chain stage's skill trained with ``seed``: the skill
+    tables' name (``stack`` -> ``stack_green_on_yellow``), ``NAME.sK`` for seed K > 0 (as
+    ``many_useful`` names seeds); the sidecar's ``name`` stays NAME, its ``seed`` K."""
+    from tasks.manipulation.task_defs import canonical
+
+    return canonical(stage) + (f".s{seed}" if seed else "")
 
 
 def stage_files(chain: str, stage: str) -> tuple[dict, dict, str]:
@@ -97,6 +107,11 @@ def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=
     from training.export import file_sha256
 
     record, stage_record, src = stage_files(chain, stage)
+    run_dir = os.path.join(chain, stage)
+    try:
+        run_config = read_record(run_dir)
+    except UsageError:
+        raise UsageError(f"{run_dir}/config.json is missing or unreadable (the stage's training run)") from None
     skill = Skill.load(src)
     meta = skill.metadata
     physics = meta.get("physics")
@@ -104,7 +119,8 @@ def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=
     bar = MIN_SUCCESS.get(library, DEFAULT_MIN_SUCCESS) if min_success is None else float(min_success)
     default_root = root is None
     name = canonical(stage)  # the library names a stage's skill as skill tables do (stack -> stack_green_on_yellow)
-    dst = skill_library.library_path(physics, name, root=root)
+    file_name = library_file_name(stage, int(run_config.seed))
+    dst = skill_library.library_path(physics, file_name, root=root)
     dst_json = dst[:-4] + ".json"
     # A .npz without its sidecar and with the source's bytes is a ship killed between its two renames:
     # finished by this call. Anything else that exists is never replaced.
@@ -112,11 +128,6 @@ def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=
     for path in (dst_json,) if orphan else (dst, dst_json):
         if os.path.exists(path):
             raise UsageError(f"{path} already exists; remove it first to replace the shipped skill")
-    run_dir = os.path.join(chain, stage)
-    try:
-        run_config = read_record(run_dir)
-    except UsageError:
-        raise UsageError(f"{run_dir}/config.json is missing or unreadable (the stage's training run)") from None
     recorded = stage_record.get("success", meta.get("success"))
     if recorded is not None and recorded < bar:
         raise UsageError(f"stage {stage!r} succeeded in {recorded:.3f} of its chain evaluation, below the "
@@ -130,7 +141,7 @@ def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=
     if success < bar:
         raise UsageError(f"stage {stage!r} succeeded in {success:.3f} of {episodes} episodes, below the "
                          f"{library} library's bar {bar}; not shipped")
-    policy = f"checkpoints/{library}/{name}.npz" if default_root else dst
+    policy = f"checkpoints/{library}/{file_name}.npz" if default_root else dst
     eval_command = (f"python -m training.evaluate --task {name} --physics {physics} --policy {policy} "
                     f"--episodes {episodes} --seed {seed}")
     wall = stage_training_wall_time(stage_record, run_dir)
@@ -153,7 +164,7 @@ def main(argv=None):
     command = " ".join(["python -m training.ship"] + argv)
     side = main_guard(lambda: ship(args.chain, args.stage, args.episodes, args.seed, args.min_success, args.root,
                                    ship_command=command))
-    print(f"shipped {args.stage} as {side['name']}: success={side['success']:.4f} over {side['success_episodes']} episodes")
+    print(f"shipped {args.stage} as {library_file_name(args.stage, side['seed'])}: success={side['success']:.4f} over {side['success_episodes']} episodes")
 
 
 if __name__ == "__main__":

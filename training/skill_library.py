@@ -103,6 +103,24 @@ def library_path(physics: str, name: str, root: str | None = None) -> str:
     return os.path.join(root or LIBRARY_ROOT, library_dir(physics), f"{name}.npz")
 
 
+def how_to_make(name: str, seed: int, physics: str) -> str:
+    """The commands that make library skill ``name`` (seed ``seed``) for ``physics``: ``train_skill`` for
+    a dense-reward skill; for a higher skill (lift X, stack X on Y: a SkillS run's new skill) the
+    ``training.chain`` stages that train it (stack X on Y after lift X, whose skill it uses), then
+    ``training.ship``."""
+    import tasks
+
+    m = re.match(r"^(lift|stack)_(green|yellow|blue)", name)
+    if m is None or name not in tasks.names():
+        train_physics = "mujoco" if library_dir(physics) == "mjx" else physics  # the CPU fast path
+        return (f"train it: python -m training.train_skill --skill {name} --physics {train_physics} --seed {seed} "
+                f"--out {library_path(physics, name)}")
+    stages = [name] if m[1] == "lift" else [f"lift_{m[2]}", name]
+    chain = f"runs/chain_{name}" + (f"_s{seed}" if seed else "")
+    return (f"a SkillS run makes it: python -m training.chain --physics {physics} --seed {seed} "
+            f"--stages {','.join(stages)} --out {chain}, then python -m training.ship --chain {chain} --stage {name}")
+
+
 def load_skills(names, physics: str, source: str = "scripted", obs_size: int | None = None,
                 action_size: int | None = None, root: str | None = None, skill_dir: str | None = None) -> list:
     """The skills ``names`` as ``parallel_skills.Skill`` objects, from ``source``:
@@ -167,10 +185,8 @@ def load_skills(names, physics: str, source: str = "scripted", obs_size: int | N
         base, seed = split_seed(n)
         if not (os.path.isfile(path) and os.path.isfile(path[:-4] + ".json")):
             missing = path if not os.path.isfile(path) else path[:-4] + ".json"
-            train_physics = "mujoco" if library_dir(physics) == "mjx" else physics  # the CPU fast path
             raise ValueError(f"skill {n!r} is not in the {physics} skill library: {missing} does not exist "
-                             f"(train it: python -m training.train_skill --skill {base} --physics {train_physics} "
-                             f"--seed {seed} --out {path}; higher skills come from SkillS runs)")
+                             f"({how_to_make(base, seed, physics)})")
         skill = Skill.load(path, obs_size=obs_size, action_size=action_size)
         skills.append(dataclasses.replace(skill, name=n, metadata=dict(skill.metadata, source="library", path=path)))
     return skills
