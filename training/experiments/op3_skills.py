@@ -225,6 +225,10 @@ def search(args):
             mu = with_param(mu, "follow_speed", 1.0)
         sd = init_std(skill, args.fitness) * args.std_scale
         gen0, best_f, best, env_steps, wall0 = 0, -np.inf, mu.copy(), 0, 0.0
+    best_summ = None  # the search episodes' summary of ``best``; a resume takes the record's
+    if gen0 and ckpt_path(skill).exists():
+        best_summ = json.loads(ckpt_path(skill).read_text()).get("record", {}).get(args.record, {}).get(
+            "search_episodes_summary_of_best")
     if skill == "getup":
         bank = bank_keys(env, 2, args.seed).reshape(2, S.BANK_PER_SIDE, 2, 2)  # [side, entry, copy, key]
         n_ep = args.episodes
@@ -259,7 +263,7 @@ def search(args):
         summ = summary(skill, {k: np.asarray(v).reshape(pop, n_ep)[order[0]] for k, v in st.items()}, steps, dt)
         summ_mean = summary(skill, {k: np.asarray(v).reshape(pop, n_ep)[0] for k, v in st.items()}, steps, dt)
         if fm[order[0]] > best_f:
-            best_f, best = float(fm[order[0]]), cands[order[0]].copy()
+            best_f, best, best_summ = float(fm[order[0]]), cands[order[0]].copy(), summ
         wall = wall0 + time.time() - t_start
         print(f"gen {gen:3d} best {fm[order[0]]:.3f} mean-cand {fm[0]:.3f} median {np.median(fm):.3f} "
               f"best {summ} | mean {summ_mean} | {env_steps / 1e6:.2f}M steps {wall:.0f}s", flush=True)
@@ -269,7 +273,7 @@ def search(args):
             pop=args.pop, elite=n_elite, episodes_per_candidate=n_ep, episode_steps=steps,
             action_noise=args.noise if skill == "walk" else 0.0, env_steps=int(env_steps), wall_time_s=round(wall, 1),
             seed=args.seed, best_fitness=best_f, fitness=args.fitness, physics="mujoco",
-            search_episodes_summary_of_best=summ)})
+            search_episodes_summary_of_best=best_summ)})
 
 
 def evaluate(args):
