@@ -20,7 +20,11 @@ def test_variants():
     assert v.config == {"new_skill": {"mpo_epsilon": 1, "mpo_alpha": 0}}
     k1 = parse_variant("k1", METHODS)
     assert k1.method == "skills" and k1.config == ABLATIONS["k1"][1]
-    with pytest.raises(Exception, match="unknown method or ablation"):
+    many = parse_variant("many_useful", METHODS)
+    assert (many.method, many.config, many.kind) == ("skills", {}, "skill_set")
+    assert many.run_args == ("--skills", "many_useful", "--skill_source", "library")
+    assert parse_variant("distractors", METHODS).run_args == ("--skills", "distractors")
+    with pytest.raises(Exception, match="unknown method, ablation or skill set 'bc'"):
         parse_variant("bc", METHODS)
     with pytest.raises(Exception, match="bad setting"):
         parse_variant("kl_reg[epsilon]", METHODS)
@@ -51,6 +55,11 @@ def test_run_status_and_commands(tmp_path):
     cmd = train_command("stack", Variant("kl_reg-x", "kl_reg", {"a": 1}), 2, 5000, d, "new", "/c.json")
     assert cmd[2:] == ["training.run", "--task", "stack", "--method", "kl_reg", "--seed", "2", "--num_timesteps",
                        "5000", "--out", d, "--config", "/c.json"]
+    # A skill set is SkillS with training.run's skill flags; a resume takes them from the run's record.
+    cmd = train_command("stack", parse_variant("useful_distractors", METHODS), 1, 5000, d, "new", None)
+    assert cmd[2:] == ["training.run", "--task", "stack", "--method", "skills", "--seed", "1", "--num_timesteps",
+                       "5000", "--out", d, "--skills", "useful+distractors"]
+    assert "--skills" not in train_command("stack", parse_variant("distractors", METHODS), 1, 5000, d, "resume", None)
 
 
 def test_success_at_budget_fractions_and_results(tmp_path):
@@ -89,18 +98,21 @@ def test_bad_arguments(tmp_path, capsys):
 def test_plots_each_method_at_its_best_setting_and_the_ablations(tmp_path, capsys):
     out = str(tmp_path)
     curves = {"skills": (0.5, 0.9), "scratch": (0.0, 0.1), "scratch-mpo_alpha=0": (0.2, 0.3),
-              "scratch-mpo_alpha=0.5": (0.0, 0.3), "k1": (0.0, 0.2)}
+              "scratch-mpo_alpha=0.5": (0.0, 0.3), "k1": (0.0, 0.2), "distractors": (0.95, 0.95)}
     for name, (mid, final) in curves.items():
         for seed in ((0, 1) if name in ("skills", "scratch") else (0,)):
             _metrics(os.path.join(out, "lift", name, f"s{seed}"), [(200, 5.0, mid, 1.0), (400, 10.0, final, 2.0)])
     variants = [parse_variant(x, ("skills", "scratch")) for x in
-                ("skills", "scratch", "scratch[new_skill.mpo_alpha=0]", "scratch[new_skill.mpo_alpha=0.5]", "k1")]
+                ("skills", "scratch", "scratch[new_skill.mpo_alpha=0]", "scratch[new_skill.mpo_alpha=0.5]", "k1",
+                 "distractors")]
     scores = {v.name: paper._score(paper._variant_runs(out, "lift", v, [0, 1])[1], 400) for v in variants}
     best = paper.best_settings(variants, scores)
-    # Ties at the budget (0.3) go to the better curve; ablations are never a method's best setting.
+    # Ties at the budget (0.3) go to the better curve; ablations and skill sets (distractors, above
+    # SkillS here) are never a method's best setting.
     assert {m: v.name for m, v in best.items()} == {"skills": "skills", "scratch": "scratch-mpo_alpha=0"}
     paths = paper.write_results(out, ["lift"], variants, [0, 1], {"lift": 400})
-    assert {os.path.basename(p) for p in paths} == {"lift_new_skill.png", "lift_ablations.png", "results.md"}
+    assert {os.path.basename(p) for p in paths} == {"lift_new_skill.png", "lift_ablations.png", "lift_skill_sets.png",
+                                                     "results.md"}
     table = open(os.path.join(out, "results.md")).read()
     assert "scratch: scratch-mpo_alpha=0" in table and "| scratch-mpo_alpha=0.5 |" in table
     # --report_only: the same files from the runs on disk, nothing trained, nothing moved aside.

@@ -21,7 +21,7 @@ from parallel_skills import Skill, SkillSet
 from parallel_skills.evaluation import rollout_episodes
 from tasks.manipulation import layout as L
 from training import skill_library
-from tasks.manipulation.task_defs import canonical
+from training.ship import library_file_name
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHIPPED = sorted(glob.glob(os.path.join(ROOT, "checkpoints", "*", "*.npz")))
@@ -101,7 +101,7 @@ def test_shipped_skill(path):
     if meta["trained_with"] == "skills":  # a chain stage's new skill (training.chain -> training.ship)
         assert meta["command"].startswith("python -m training.chain ")
         stage = meta["training"]["chain_stage"]  # shipped under its full name (stack -> stack_green_on_yellow)
-        assert canonical(stage) == stem and meta["training"]["env_steps"] > 0
+        assert library_file_name(stage, meta["seed"]) == stem and meta["training"]["env_steps"] > 0
         assert meta["ship_command"].startswith("python -m training.ship ") and f"--stage {stage}" in meta["ship_command"]
         assert meta["training"]["stage_command"].startswith(f"python -m training.run --task {stage} ")
         from training.export import file_sha256
@@ -159,15 +159,15 @@ def test_many_useful_loads_from_the_library_and_stacks():
 
 def _first_unshipped(task, which):
     """The first skill of ``task``'s skill set ``which`` that the kinematic library lacks (every
-    task's ``useful`` set is shipped; ``many_useful`` of stack needs seeds 1, 2 of lift green)."""
+    task's ``useful`` set is shipped; ``many_useful`` of pyramid needs seeds 1, 2 of stack green on yellow)."""
     names = skill_library.skill_names(task, which)
     return next(n for n in names if not os.path.isfile(os.path.join(ROOT, "checkpoints", "kinematic", f"{n}.npz")))
 
 
 def test_skill_sources_fail_in_one_line(tmp_path):
-    missing = _first_unshipped("stack", "many_useful")
+    missing = _first_unshipped("pyramid", "many_useful")
     with pytest.raises(ValueError, match=rf"kinematic skill library: .*{missing}\.npz does not exist"):
-        skill_library.load_skills(skill_library.skill_names("stack", "many_useful"), "kinematic", "library")
+        skill_library.load_skills(skill_library.skill_names("pyramid", "many_useful"), "kinematic", "library")
     with pytest.raises(ValueError, match="seed 1 of 'reach_green', which only the neural library has"):
         skill_library.load_skills(["reach_green.s1"], "kinematic", "scripted")
     with pytest.raises(ValueError, match="mujoco skill library: .*checkpoints/mjx/reach_green.npz does not exist"):
@@ -183,10 +183,10 @@ def test_training_run_library_source_errors(tmp_path, capsys):
 
     out = tmp_path / "run"
     with pytest.raises(SystemExit) as e:
-        main(["--task", "stack", "--skills", "many_useful", "--skill_source", "library", "--out", str(out)])
+        main(["--task", "pyramid", "--skills", "many_useful", "--skill_source", "library", "--out", str(out)])
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
-    missing = _first_unshipped("stack", "many_useful")
+    missing = _first_unshipped("pyramid", "many_useful")
     assert len(err) == 1 and err[0].startswith(f"error: skill '{missing}' is not in the kinematic skill library")
     assert f"checkpoints/kinematic/{missing}.npz" in err[0]
     with pytest.raises(SystemExit) as e:
@@ -314,7 +314,6 @@ def test_stack_yellow_on_blue_table_is_stacks_with_the_cubes_renamed():
 def test_a_missing_library_skill_names_the_command_that_makes_it(tmp_path):
     """Dense-reward skills: train_skill; higher skills (a SkillS run's new skill): the chain stages
     that train it, then ship, which names a seed-K chain's skill NAME.sK (as many_useful loads it)."""
-    from training.ship import library_file_name
 
     with pytest.raises(ValueError, match=r"train it: python -m training.train_skill --skill reach_green "
                                          r"--physics kinematic --seed 1 "):

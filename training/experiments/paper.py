@@ -8,12 +8,15 @@ resumed — then learning-curve plots and a table of success at fixed budgets.
 A variant is a method (``training.run --method``), or a method with config settings in brackets,
 e.g. ``kl_reg[new_skill.mpo_epsilon=1,new_skill.mpo_alpha=0]`` (a baseline's sweep setting), or a
 named ablation of SkillS (``ABLATIONS``: k1, fixed100, no_augmentation, new_skill_mpo,
-no_new_skill_choice).
+no_new_skill_choice), or SkillS with another skill set (``SKILL_SETS``, the paper's Fig. 5:
+useful_distractors, distractors, library_useful, many_useful; the last two load the neural skill
+library, ``many_useful`` three seeds of each useful skill).
 
 Layout: ``OUT/<task>/<variant>/s<seed>/`` (a ``training.run`` directory, its log next to it as
 ``s<seed>.log``), ``OUT/<task>_new_skill.png`` (new skill alone, mean ± 1 std over seeds, each
 method at its best setting among the variants run, as the paper reports its baselines),
-``OUT/<task>_ablations.png`` (SkillS and its ablations, when any ran), ``OUT/results.md`` (every
+``OUT/<task>_ablations.png`` (SkillS and its ablations, when any ran), ``OUT/<task>_skill_sets.png``
+(SkillS and its skill sets, when any ran), ``OUT/results.md`` (every
 variant: success at fixed fractions of the budget, wall time per run and in total).
 ``--budgets task=N,...`` sets env steps per task (``BUDGETS`` otherwise). ``--jobs J`` runs J
 trainings at once, each pinned to its own CPU core. ``--dry_run`` prints the plan only;
@@ -45,6 +48,14 @@ ABLATIONS = {
     "new_skill_mpo": ("skills", {"new_skill": {"mpo_alpha": 0.0}}),  # MPO instead of CRR for the new skill
     "no_new_skill_choice": ("skills", {"scheduler": {"new_skill_choice": False}}),  # Fig. 6a
 }
+# Skill-set ablations (paper Fig. 5, App. C's skill sets): SkillS with these ``training.run`` flags
+# instead of the default (``--skills useful`` from the scripted controllers).
+SKILL_SETS = {
+    "useful_distractors": ("--skills", "useful+distractors"),
+    "distractors": ("--skills", "distractors"),
+    "library_useful": ("--skills", "useful", "--skill_source", "library"),  # many_useful's reference
+    "many_useful": ("--skills", "many_useful", "--skill_source", "library"),  # 3 seeds of each useful skill
+}
 FRACTIONS = (0.25, 0.5, 1.0)  # of the budget, for the table
 KEY = "eval/new_skill_success"  # what the table and the choice of a method's best setting read
 _VARIANT = re.compile(r"^(?P<name>[a-z0-9_]+)(\[(?P<settings>[^\]]*)\])?$")
@@ -55,6 +66,8 @@ class Variant:
     name: str  # directory name
     method: str
     config: dict  # nested TrainConfig fields ({} for the defaults)
+    run_args: tuple = ()  # extra training.run flags (a skill set)
+    kind: str = "method"  # "method" (a method or one of its settings), "ablation" or "skill_set"
 
 
 def parse_variant(text: str, methods) -> Variant:
@@ -63,12 +76,16 @@ def parse_variant(text: str, methods) -> Variant:
     if not m:
         raise UsageError(f"bad variant {text!r}: use METHOD or METHOD[section.field=value,...]")
     name = m.group("name")
+    run_args, kind = (), "method"
     if name in ABLATIONS:
-        method, config = ABLATIONS[name]
+        (method, config), kind = ABLATIONS[name], "ablation"
+    elif name in SKILL_SETS:
+        method, config, run_args, kind = "skills", {}, SKILL_SETS[name], "skill_set"
     elif name in methods:
         method, config = name, {}
     else:
-        raise UsageError(f"unknown method or ablation {name!r}; valid: {', '.join(list(methods) + list(ABLATIONS))}")
+        valid = list(methods) + list(ABLATIONS) + list(SKILL_SETS)
+        raise UsageError(f"unknown method, ablation or skill set {name!r}; valid: {', '.join(valid)}")
     config = json.loads(json.dumps(config))
     parts = []
     for item in filter(None, (m.group("settings") or "").split(",")):
@@ -85,7 +102,7 @@ def parse_variant(text: str, methods) -> Variant:
             node = node.setdefault(p, {})
         node[last] = parsed
         parts.append(f"{key.rsplit('.', 1)[-1]}={value}")
-    return Variant(name="-".join([name] + parts), method=method, config=config)
+    return Variant(name="-".join([name] + parts), method=method, config=config, run_args=tuple(run_args), kind=kind)
 
 
 def run_status(run_dir: str, budget: int) -> str:
@@ -113,7 +130,7 @@ def train_command(task: str, variant: Variant, seed: int, budget: int, run_dir: 
     if status == "resume":
         return cmd + ["--resume", "--out", run_dir, "--num_timesteps", str(budget)]
     cmd += ["--task", task, "--method", variant.method, "--seed", str(seed), "--num_timesteps", str(budget),
-            "--out", run_dir]
+            "--out", run_dir, *variant.run_args]
     return cmd + (["--config", config_path] if config_path else [])
 
 
@@ -184,7 +201,7 @@ def best_settings(variants: list, scores: dict) -> dict:
     the variants were given in."""
     best = {}
     for v in variants:
-        if v.name in ABLATIONS or v.name not in scores:
+        if v.kind != "method" or v.name not in scores:
             continue
         if v.method not in best or scores[v.name] > scores[best[v.method].name]:
             best[v.method] = v
@@ -199,8 +216,8 @@ def _label(v: Variant, runs: int) -> str:
 
 def write_results(out: str, tasks: list, variants: list, seeds: list, budgets: dict) -> list:
     """Per task: OUT/<task>_new_skill.png (each method at its best setting, ``best_settings``),
-    OUT/<task>_ablations.png when ablations ran (SkillS and its ablations); OUT/results.md (every
-    variant). Returns the files written."""
+    OUT/<task>_ablations.png / OUT/<task>_skill_sets.png when ablations / skill sets ran (SkillS and
+    them); OUT/results.md (every variant). Returns the files written."""
     import numpy as np
 
     from training.plot import Run, plot_curves
@@ -239,13 +256,15 @@ def write_results(out: str, tasks: list, variants: list, seeds: list, budgets: d
             lines.append("")
             groups = [(_label(v, len(found[v.name][0])), [Run(d) for d in found[v.name][0]]) for v in best.values()]
             written.append(plot_curves(groups, os.path.join(out, f"{task}_new_skill.png")))
-        ablations = [v for v in variants if v.name in ABLATIONS and v.name in found]
-        if ablations:
-            base = [v for v in variants if v.name == "skills" and v.name in found]
+        base = [v for v in variants if v.name == "skills" and v.name in found]
+        for kind, suffix in (("ablation", "ablations"), ("skill_set", "skill_sets")):
+            others = [v for v in variants if v.kind == kind and v.name in found]
+            if not others:
+                continue
             groups = [(_label(v, len(found[v.name][0])) if v.name == "skills" else
                        f"{v.name}, {len(found[v.name][0])} seed{'s' if len(found[v.name][0]) > 1 else ''}",
-                       [Run(d) for d in found[v.name][0]]) for v in base + ablations]
-            written.append(plot_curves(groups, os.path.join(out, f"{task}_ablations.png")))
+                       [Run(d) for d in found[v.name][0]]) for v in base + others]
+            written.append(plot_curves(groups, os.path.join(out, f"{task}_{suffix}.png")))
     lines.append(f"Total training wall time of the runs above: {total_seconds / 3600:.2f} h (summed over runs; "
                  "runs in parallel overlap).")
     path = os.path.join(out, "results.md")
