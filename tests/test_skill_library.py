@@ -314,7 +314,6 @@ def test_stack_yellow_on_blue_table_is_stacks_with_the_cubes_renamed():
 def test_a_missing_library_skill_names_the_command_that_makes_it(tmp_path):
     """Dense-reward skills: train_skill; higher skills (a SkillS run's new skill): the chain stages
     that train it, then ship, which names a seed-K chain's skill NAME.sK (as many_useful loads it)."""
-
     with pytest.raises(ValueError, match=r"train it: python -m training.train_skill --skill reach_green "
                                          r"--physics kinematic --seed 1 "):
         skill_library.load_skills(["reach_green.s1"], "kinematic", "library", root=str(tmp_path))

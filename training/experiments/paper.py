@@ -102,7 +102,7 @@ def parse_variant(text: str, methods) -> Variant:
             node = node.setdefault(p, {})
         node[last] = parsed
         parts.append(f"{key.rsplit('.', 1)[-1]}={value}")
-    return Variant(name="-".join([name] + parts), method=method, config=config, run_args=tuple(run_args), kind=kind)
+    return Variant(name="-".join([name] + parts), method=method, config=config, run_args=run_args, kind=kind)
 
 
 def run_status(run_dir: str, budget: int) -> str:
