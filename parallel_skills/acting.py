@@ -47,6 +47,8 @@ class StepStats:
     nonfinite: jax.Array  # 1.0 where the env returned a non-finite observation or reward
     new_skill_active: jax.Array  # 1.0 where the new skill acted
     skill_runs: jax.Array  # runs of consecutive execution that ended here, per skill
+    entropy_i: jax.Array  # entropy of the scheduler's π(i | s) at this step's state (read at decisions)
+    entropy_k: jax.Array  # entropy of its π(k | s)
 
 
 def skill_run_ends(i_prev, first_prev, i, is_decision, done, num_skills: int):
@@ -152,7 +154,8 @@ class Actor:
         stats = StepStats(
             done=done, ep_return=ep_return, ep_success=ep_success, nonfinite=(~finite).astype(jnp.float32),
             new_skill_active=(i == self.new_index).astype(jnp.float32),
-            skill_runs=skill_run_ends(actor.i, actor.first, i, is_decision, done, self.num_skills_total))
+            skill_runs=skill_run_ends(actor.i, actor.first, i, is_decision, done, self.num_skills_total),
+            entropy_i=networks.categorical_entropy(logits_i), entropy_k=networks.categorical_entropy(logits_k))
         env_state = self.auto_reset(nxt, done, k_r)
         actor = ActorState(env_state=env_state, c=c, i=i, k_idx=k_idx, first=done | nan_reset,
                            ep_return=jnp.where(done, 0.0, ep_return), ep_success=jnp.where(done, 0.0, ep_success))

@@ -75,6 +75,11 @@ class SchedulerConfig:
     # False: the scheduler never chooses the new skill (the paper's Fig. 6a ablation; the new skill
     # still learns from every transition). networks.SchedulerPolicy gives it a −1e9 logit bias.
     new_skill_choice: bool = True
+    # n-step targets for the critic within skill executions (replay.SchedulerNStepTransition,
+    # nstep.execution_nstep_fields): Q(s_t, c, i, k) regresses on the next m = min(n, c̄) rewards and
+    # the value at s_{t+m} (c̄: the counter of the labelling, the augmented one's included), exact
+    # for the option being evaluated (no decision inside an execution). 1: the one-step Eq. 3 (paper).
+    n_step: int = 1
     # Learner updates during which only the critic learns (policy and duals frozen): lets the
     # long-horizon values of Eq. 3 propagate before policy improvement starts (0 = paper).
     policy_warmup_updates: int = 0

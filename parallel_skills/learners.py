@@ -53,7 +53,7 @@ from parallel_skills.networks import (GaussianPolicy, QCritic, QEnsemble, Schedu
                                       categorical_entropy, gaussian_log_prob, pair_values, read_pairs,
                                       joint_log_probs, sample_action)
 
-from parallel_skills.replay import Transition
+from parallel_skills.replay import SchedulerBatch, Transition
 
 Params = Dict
 
@@ -160,6 +160,17 @@ def make_scheduler_apply(num_skills_total: int, config: SchedulerConfig
     return policy.apply
 
 
+def scheduler_state_values(policy_params: Params, critic_params: Params, obs: jnp.ndarray, num_skills_total: int,
+                           config: SchedulerConfig) -> jnp.ndarray:
+    """V(s) = Σ_z π(z|s)·Q(s, c = k_z, z) [B] at decision states ``obs`` [B, O] (normalised): the
+    value the scheduler's critic gives a fresh decision under its (online) policy."""
+    policy, critic = scheduler_networks(num_skills_total, config)
+    lengths = _skill_lengths(config)
+    li, lk = policy.apply(policy_params, obs)
+    table = critic.apply(critic_params, obs, _tile(lengths, obs.shape[0]))  # [B, M, P]
+    return jnp.sum(jnp.exp(joint_log_probs(li, lk)) * pair_values(table, lengths.shape[0]), axis=-1)
+
+
 def scheduler_learner_init(key: jax.Array, obs_size: int, num_skills_total: int,
                            config: SchedulerConfig) -> LearnerState:
     """Initial scheduler learner state (targets = copies of the online networks)."""
@@ -221,21 +232,35 @@ def scheduler_labels(batch: Transition, config: SchedulerConfig) -> SchedulerLab
                            is_decision=stack("is_decision"), weight=stack("weight"))
 
 
+def target_steps(batch: Transition) -> jax.Array:
+    """m [B]: the env steps a scheduler batch's targets span (``replay.SchedulerBatch.steps``; 1 for
+    a plain ``Transition``: one-step Eq. 3)."""
+    if isinstance(batch, SchedulerBatch):
+        return batch.steps.astype(jnp.int32)
+    return jnp.ones(batch.reward.shape, jnp.int32)
+
+
 def scheduler_targets(state: LearnerState, batch: Transition, labels: SchedulerLabels, networks, lengths,
                       config: SchedulerConfig) -> SchedulerTargets:
     """Eq. 3's target [B, L] with the target policy and critic at s' (the expectation over
-    (i', k') exact), and π_old = the target policy at s."""
+    (i', k') exact), and π_old = the target policy at s. With n-step rows (``replay.SchedulerBatch``,
+    reward R = Σ_{j<m} γ^j r_{t+j}, discount γ^(m−1)·d, s' = s_{t+m}) the target is Eq. 3 for the
+    option's m steps: R + γ^m·d·V' at s_{t+m}, where the counter there is c − m (fresh decision when
+    the execution ended, c − m + 1 == 1)."""
     policy, critic = networks
     b, m = batch.obs.shape[0], lengths.shape[0]
     t_li_next, t_lk_next = policy.apply(state.target_policy_params, batch.next_obs)
     probs_next = jnp.exp(joint_log_probs(t_li_next, t_lk_next))  # [B, P]
     # One head row per distinct counter value: c' = each K (fresh decisions) and c − 1 (continuing,
     # one per labelling).
+    # n-step (SchedulerConfig.n_step; replay.SchedulerBatch): s' = s_{t+m}, reached with the counter
+    # c − m + 1 at its last step (1: the execution ended, s' is a decision state).
+    c_last = labels.c - (target_steps(batch)[:, None] - 1)
     table = critic.apply(state.target_critic_params, batch.next_obs,
-                         jnp.concatenate([_tile(lengths, b), jnp.maximum(labels.c - 1, 1)], axis=1))
+                         jnp.concatenate([_tile(lengths, b), jnp.maximum(c_last - 1, 1)], axis=1))
     q_fresh_next = pair_values(table[:, :m], m)  # [B, P]: Q'(s', K, i, k)
     q_cont_next = read_pairs(table[:, m:], labels.skill, labels.k_idx, m)  # [B, L]
-    y = critic_target(batch.reward[:, None], batch.discount[:, None], labels.c, q_cont_next,
+    y = critic_target(batch.reward[:, None], batch.discount[:, None], c_last, q_cont_next,
                       q_fresh_next[:, None], probs_next[:, None], config.discount)  # [B, L]
     t_li, t_lk = policy.apply(state.target_policy_params, batch.obs)
     log_prior = jax.lax.stop_gradient(joint_log_probs(t_li, t_lk))  # [B, P]

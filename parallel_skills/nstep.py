@@ -1,4 +1,4 @@
-"""n-step TD targets for the new skill's critic (paper App. B.3: the learner trains on
+"""n-step TD targets for the new skill's critic, and for the scheduler's within skill executions (paper App. B.3: the learner trains on
 trajectories of length 10; docs/design.md "New skill").
 
 With 1-step TD the new skill's critic learns a sparse reward only by bootstrapping through its
@@ -37,6 +37,7 @@ def nstep_fields(window, n: int, gamma: float) -> Dict[str, jnp.ndarray]:
                      R_t + γ^m·d·Q'(s_{t+m}) (for n = 1: the 1-step discount unchanged)
       nstep_next_obs s_{t+m} (the last included step's next_obs)
       nstep_weight   Π_{j<m} weight_{t+j} (a bad step anywhere in the return drops the sample)
+      nstep_steps    m (int32)
     with m = min(n, steps to the end of t's episode, counting the ending step).
     """
     n = int(n)
@@ -53,10 +54,27 @@ def nstep_fields(window, n: int, gamma: float) -> Dict[str, jnp.ndarray]:
     next_obs = window.next_obs[0:t]
     weight = at("weight", 0)
     alive = 1.0 - at("done", 0)  # step t + j belongs to t's episode
+    steps = jnp.ones(ret.shape, jnp.int32)  # m
     for j in range(1, n):
         ret = ret + alive * (gamma ** j) * at("reward", j)
         disc = jnp.where(alive > 0, (gamma ** j) * at("discount", j), disc)
         next_obs = jnp.where(alive[..., None] > 0, window.next_obs[j:j + t], next_obs)
         weight = jnp.where(alive > 0, weight * at("weight", j), weight)
+        steps = steps + (alive > 0).astype(jnp.int32)
         alive = alive * (1.0 - at("done", j))
-    return {"nstep_reward": ret, "nstep_discount": disc, "nstep_next_obs": next_obs, "nstep_weight": weight}
+    return {"nstep_reward": ret, "nstep_discount": disc, "nstep_next_obs": next_obs, "nstep_weight": weight,
+            "nstep_steps": steps}
+
+
+def execution_nstep_fields(window, n: int, gamma: float, boundary: jnp.ndarray) -> Dict[str, jnp.ndarray]:
+    """The scheduler's n-step returns (``SchedulerConfig.n_step``): ``nstep_fields`` whose returns
+    also stop after a step where ``boundary`` [W, B] holds (the step's skill execution ends there:
+    the next step is a decision of the scheduler, actual or, with the augmentation, of the
+    duplicate's labelling).
+
+    Inside one skill execution no decision is taken, so the return of the next m steps is the
+    return of the option being evaluated, Q(s_t, c, i, k) = R_t + γ^m·Q(s_{t+m}, c − m, i, k)
+    (m < c), and R_t + γ^m·V(s_{t+m}) at the execution's end (m = c): the n-step target of Eq. 3
+    needs no off-policy correction (the frozen skills' actions, noise included, are the option's
+    own). Returns ``nstep_fields``' dict, ``nstep_steps`` = m [T, B] int32 included."""
+    return nstep_fields(window.replace(done=window.done | boundary), n, gamma)

@@ -19,6 +19,7 @@ from flax import struct
 
 from parallel_skills import normalization as obs_norm
 from parallel_skills import nstep
+from parallel_skills.augmentation import augment_labels_indexed
 
 
 @struct.dataclass
@@ -96,6 +97,28 @@ class NStepTransition(Transition):
 
 
 @struct.dataclass
+class SchedulerNStepTransition(NStepTransition):
+    """An ``NStepTransition`` with the scheduler's n-step return as well (``SchedulerConfig.n_step``
+    > 1; ``nstep.execution_nstep_fields``: returns that stop where a skill execution ends):
+    sched_reward / sched_discount / sched_weight [...], sched_next_obs [..., O], sched_steps [...]
+    int32 (m, the steps the return spans)."""
+
+    sched_reward: jax.Array
+    sched_discount: jax.Array
+    sched_next_obs: jax.Array
+    sched_weight: jax.Array
+    sched_steps: jax.Array
+
+
+@struct.dataclass
+class SchedulerBatch(Transition):
+    """A scheduler learner batch [B]: reward / discount / next_obs / weight are those of the target
+    R + γ^m·d·V'(s_{t+m}) (for m = 1 the one-step ones), ``steps`` [B] int32 is m."""
+
+    steps: jax.Array
+
+
+@struct.dataclass
 class PendingStep(Transition):
     """A collected step waiting for its n-step return (``done`` [...] bool: the episode ended at
     this step)."""
@@ -115,26 +138,40 @@ class Replay:
     new_skill_batch_size: int
     n_step: int = 1
     discount: float = 0.99
+    # The scheduler's n-step returns (SchedulerConfig.n_step; 1: one-step Eq. 3), its discount, K
+    # and whether its learner augments (the returns stop where the duplicate's executions end too).
+    scheduler_n_step: int = 1
+    scheduler_discount: float = 0.99
+    skill_lengths: tuple = (10,)
+    augmentation: bool = True
+
+    @property
+    def window(self) -> int:
+        """Steps an insert needs to see past a step: the longer of the two n-step returns."""
+        return max(int(self.n_step), int(self.scheduler_n_step))
 
     def _buffer(self, batch_size: int):
         return fbx.make_item_buffer(self.capacity, 1, batch_size, add_batches=True)
 
     def init(self):
-        """An empty buffer whose rows are ``Transition`` (``NStepTransition`` when n_step > 1)."""
+        """An empty buffer whose rows are ``Transition`` (``NStepTransition`` when n_step > 1,
+        ``SchedulerNStepTransition`` when scheduler_n_step > 1)."""
         tr = Transition.zeros(self.obs_size, self.action_size)
-        if self.n_step > 1:
-            z = jnp.zeros((), jnp.float32)
-            tr = NStepTransition(**tr.fields(), nstep_reward=z, nstep_discount=z, nstep_next_obs=jnp.zeros((self.obs_size,)),
-                                 nstep_weight=z)
+        z, obs = jnp.zeros((), jnp.float32), jnp.zeros((self.obs_size,))
+        if self.n_step > 1 or self.scheduler_n_step > 1:
+            tr = NStepTransition(**tr.fields(), nstep_reward=z, nstep_discount=z, nstep_next_obs=obs, nstep_weight=z)
+        if self.scheduler_n_step > 1:
+            tr = SchedulerNStepTransition(**tr.fields(), **_nstep_row_fields(tr), sched_reward=z, sched_discount=z,
+                                          sched_next_obs=obs, sched_weight=z, sched_steps=jnp.zeros((), jnp.int32))
         return self._buffer(self.scheduler_batch_size).init(tr)
 
     def init_pending(self) -> Optional[PendingStep]:
         """n − 1 placeholder steps per env [n − 1, B]: weight 0 (never learnt from), done (no return
-        reaches past them). None for 1-step runs."""
-        if self.n_step == 1:
+        reaches past them), n = ``window``. None for 1-step runs."""
+        if self.window == 1:
             return None
-        tr = Transition.zeros(self.obs_size, self.action_size, (self.n_step - 1, self.num_envs))
-        return PendingStep(**tr.fields(), done=jnp.ones((self.n_step - 1, self.num_envs), bool))
+        tr = Transition.zeros(self.obs_size, self.action_size, (self.window - 1, self.num_envs))
+        return PendingStep(**tr.fields(), done=jnp.ones((self.window - 1, self.num_envs), bool))
 
     def size(self, state) -> jax.Array:
         """Rows stored (int32 scalar)."""
@@ -145,23 +182,53 @@ class Replay:
         whose n-step returns are now known are inserted (n − 1 steps late) and the last n − 1 are
         kept as the new ``pending``. Returns (state, pending)."""
         t = traj.reward.shape[0]
-        if self.n_step > 1:
+        if self.window > 1:
             step = PendingStep(**traj.fields(), done=done)
             window = jax.tree.map(lambda p, x: jnp.concatenate([p, x], axis=0), pending, step)
             pending = jax.tree.map(lambda x: x[t:], window)
             head = jax.tree.map(lambda x: x[:t], window).one_step()
-            fields = nstep.nstep_fields(window, self.n_step, self.discount)
-            rows = NStepTransition(**head.fields(), **fields)
+            first = lambda n: jax.tree.map(lambda x: x[:t + n - 1], window)  # noqa: E731  (t complete n-step returns)
+            fields = nstep.nstep_fields(first(self.n_step), self.n_step, self.discount)
+            rows = NStepTransition(**head.fields(), **_nstep_row_fields(fields))
+            if self.scheduler_n_step > 1:
+                sched = first(self.scheduler_n_step)
+                sched = nstep.execution_nstep_fields(sched, self.scheduler_n_step, self.scheduler_discount,
+                                                     self.execution_ends(sched))
+                rows = SchedulerNStepTransition(**rows.fields(), **_nstep_row_fields(rows),
+                                                **{f"sched_{k[len('nstep_'):]}": v for k, v in sched.items()})
         else:
             rows = traj
         flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), rows)  # [T, B, ...] -> [T·B, ...]
         return self._buffer(self.scheduler_batch_size).add(state, flat), pending
 
-    def sample_scheduler(self, state, normalizer, key) -> Transition:
+    def rewarded_fraction(self, state) -> jax.Array:
+        """The fraction of stored rows with a positive reward (float32 scalar; 0 when empty)."""
+        reward = state.experience.reward.reshape(-1)
+        stored = jnp.arange(reward.shape[0]) < self.size(state)
+        return jnp.sum(stored & (reward > 0)) / jnp.maximum(self.size(state), 1).astype(jnp.float32)
+
+    def execution_ends(self, steps) -> jax.Array:
+        """[...] bool: the skill execution of each step (``Transition`` labels k_idx, c) ends at it,
+        in the scheduler's labelling and, with the augmentation, in its duplicate's (c̄ = 1)."""
+        c = steps.c
+        if self.augmentation:
+            _, c, _, _ = augment_labels_indexed(steps.k_idx, steps.c, self.skill_lengths)
+        return c == 1
+
+    def sample_scheduler(self, state, normalizer, key) -> SchedulerBatch:
         """A scheduler batch [batch] with normalised observations and no actions ([batch, 0]: the
-        scheduler reads none). Its learner adds the augmented labels (``learners.scheduler_labels``)."""
+        scheduler reads none); with scheduler_n_step > 1 its reward, discount, next_obs and weight
+        are the n-step ones (``SchedulerBatch.steps`` = m). Its learner adds the augmented labels
+        (``learners.scheduler_labels``)."""
         rows = self._buffer(self.scheduler_batch_size).sample(state, key).experience
-        return _normalized(rows.one_step().replace(action=rows.action[:, :0]), normalizer)
+        one = rows.one_step().replace(action=rows.action[:, :0])
+        if self.scheduler_n_step > 1:
+            one = one.replace(reward=rows.sched_reward, discount=rows.sched_discount, next_obs=rows.sched_next_obs,
+                              weight=rows.sched_weight)
+            steps = rows.sched_steps
+        else:
+            steps = jnp.ones(rows.reward.shape, jnp.int32)
+        return _normalized(SchedulerBatch(**one.fields(), steps=steps), normalizer)
 
     def sample_new_skill(self, state, normalizer, key, raw_obs: bool = False):
         """A new-skill batch [batch] with normalised observations; with n_step > 1 its reward,
@@ -169,7 +236,7 @@ class Replay:
         next_obs)), the batch's observations before normalisation [batch, O] each, for what reads
         raw observations (the frozen skills)."""
         rows = self._buffer(self.new_skill_batch_size).sample(state, key).experience
-        if self.n_step > 1:
+        if self.n_step > 1 or self.scheduler_n_step > 1:  # (n_step 1: the n-step fields are the 1-step ones)
             raw = (rows.obs, rows.nstep_next_obs)
             rows = rows.replace(nstep_next_obs=obs_norm.normalize(normalizer, rows.nstep_next_obs))
             batch = _normalized(rows.as_nstep_target(), normalizer, next_obs=False)
@@ -177,6 +244,12 @@ class Replay:
             raw = (rows.obs, rows.next_obs)
             batch = _normalized(rows, normalizer)
         return (batch, raw) if raw_obs else batch
+
+
+def _nstep_row_fields(fields) -> dict:
+    """The ``NStepTransition`` fields of a dict of ``nstep.nstep_fields`` or of a row."""
+    get = fields.get if isinstance(fields, dict) else lambda k: getattr(fields, k)  # noqa: E731
+    return {k: get(k) for k in ("nstep_reward", "nstep_discount", "nstep_next_obs", "nstep_weight")}
 
 
 def _normalized(batch: Transition, normalizer, next_obs: bool = True) -> Transition:

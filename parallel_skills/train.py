@@ -87,9 +87,13 @@ def make_actor(environment, skills: Sequence[Skill], config: TrainConfig, num_en
 def make_replay(environment, config: TrainConfig) -> Replay:
     sc, nc = config.scheduler, config.new_skill
     capacity = max(int(config.replay_size), config.steps_per_iteration, sc.batch_size, nc.batch_size)
+    # (The scheduler's n-step rows only where its learner runs: SkillS.)
+    sched_n = int(sc.n_step) if config.method == "skills" else 1
     return Replay(capacity=capacity, num_envs=int(config.num_envs), obs_size=int(environment.observation_size),
                   action_size=int(environment.action_size), scheduler_batch_size=sc.batch_size,
-                  new_skill_batch_size=nc.batch_size, n_step=int(nc.n_step), discount=nc.discount)
+                  new_skill_batch_size=nc.batch_size, n_step=int(nc.n_step), discount=nc.discount,
+                  scheduler_n_step=sched_n, scheduler_discount=sc.discount,
+                  skill_lengths=tuple(sc.skill_lengths), augmentation=bool(sc.augmentation))
 
 
 def run_learner(update, sample, config, state, key, num_updates: int, ready):
@@ -126,6 +130,10 @@ def iteration_metrics(traj: Transition, stats: StepStats, num_skills_total: int,
         # Maximal consecutive runs of each skill that ended (skill_steps / skill_runs = the
         # average consecutive execution, paper Fig. 4c).
         "skill_runs": jnp.sum(stats.skill_runs, axis=(0, 1)),
+        # Entropies of the scheduler's π(i | s) and π(k | s), summed over the decisions taken
+        # (``EpisodeAccumulator.summary``: their means per decision, decision_entropy_i / _k).
+        "entropy_i_sum": jnp.sum(stats.entropy_i * dec),
+        "entropy_k_sum": jnp.sum(stats.entropy_k * dec),
     }
 
 
@@ -235,6 +243,7 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig, mesh
         ts, traj, stats = collect_insert(ts, k_collect)
         sched_state, new_state, sched_m, new_m = learn(ts, k_learn)
         metrics = iteration_metrics(traj, stats, n_total, sc.num_lengths)
+        metrics["replay_rewarded_fraction"] = replay.rewarded_fraction(ts.replay)
         metrics.update({f"scheduler/{k}": v for k, v in sched_m.items()})
         metrics.update({f"new_skill/{k}": v for k, v in new_m.items()})
         ts = ts.replace(scheduler=sched_state, new_skill=new_state, key=key,
@@ -321,7 +330,10 @@ def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: in
     (paper App. C.3): ``eval_new(new_params, normalizer, key)``,
     ``eval_scheduler(sched_params, new_params, normalizer, key)`` -> dict of per-episode ``return`` /
     ``success`` [num_episodes]. The scheduler acts greedily (argmax z) with its counters, through
-    the run's acting step (``Actor.step``) on ``num_episodes`` envs."""
+    the run's acting step (``Actor.step``) on ``num_episodes`` envs. The third,
+    ``eval_scheduler_sampled(sched_params, critic_params, new_params, normalizer, key)``, runs it as it
+    collects (sampled, with the collection noise) and adds ``discounted_return`` and its critic's
+    ``value_at_reset`` per episode."""
     new_apply = learners.make_new_skill_apply(int(env.action_size), trainer.config.new_skill)
     actor = make_actor(env, trainer.skills, trainer.config, num_episodes)
 
@@ -341,7 +353,29 @@ def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: in
         (_, ret, succ), _ = jax.lax.scan(body, (actor.reset(k0), z, z), jax.random.split(k1, episode_length))
         return {"return": ret, "success": succ}
 
-    return jax.jit(eval_new), jax.jit(eval_scheduler)
+    def eval_scheduler_sampled(sched_params, critic_params, new_params, normalizer, key):
+        """The scheduler as it collects (sampled decisions, collection noise, the new skill's
+        sampled actions): per episode return, success, the discounted return Σ_t γ^t r_t of the
+        first episode and the scheduler critic's value V(s_0) at its reset state."""
+        k0, k1 = jax.random.split(key)
+        gamma = trainer.config.scheduler.discount
+        start = actor.reset(k0)
+        value = learners.scheduler_state_values(sched_params, critic_params,
+                                                obs_norm.normalize(normalizer, start.env_state.obs),
+                                                trainer.num_skills_total, trainer.config.scheduler)
+
+        def body(carry, k):
+            state, ret, succ, disc_ret, scale = carry
+            state, tr, st = actor.step(state, sched_params, new_params, normalizer, k, greedy=False)
+            return (state, ret + tr.reward, jnp.maximum(succ, st.ep_success), disc_ret + scale * tr.reward,
+                    jnp.where(st.done, 0.0, scale * gamma)), None
+
+        z = jnp.zeros(num_episodes)
+        (_, ret, succ, disc_ret, _), _ = jax.lax.scan(body, (start, z, z, z, jnp.ones(num_episodes)),
+                                                      jax.random.split(k1, episode_length))
+        return {"return": ret, "success": succ, "discounted_return": disc_ret, "value_at_reset": value}
+
+    return jax.jit(eval_new), jax.jit(eval_scheduler), jax.jit(eval_scheduler_sampled)
 
 
 def _checked_config(environment, skills, config: TrainConfig, num_timesteps, num_envs, checkpoint_every,
@@ -542,13 +576,13 @@ def _host_loop(trainer: Trainer, iteration, state, num_seeds: Optional[int], eva
              "" if num_seeds is None else f", {num_seeds} seeds")
     host_states = [h or {} for h in host_states]
     metrics = [dict(h.get("metrics") or {}) for h in host_states]
-    accs = [_Accumulator.from_dict(h.get("accumulator")) for h in host_states]
+    accs = [EpisodeAccumulator.from_dict(h.get("accumulator")) for h in host_states]
     # (The wall clock of a vmapped run is shared: its seeds started together.)
     t0 = time.perf_counter() - float(host_states[0].get("wall_time", 0.0))
     last_checkpoint = time.perf_counter()
     for it in range(start, num_iterations):
         state, train_m = iteration(state)
-        summed = _Accumulator.fetch(train_m)  # one device-to-host copy for all seeds
+        summed = EpisodeAccumulator.fetch(train_m)  # one device-to-host copy for all seeds
         for j, i in enumerate(seeds):
             accs[j].add(_seed_slice(summed, i))
         if step_fn is not None:
@@ -561,7 +595,7 @@ def _host_loop(trainer: Trainer, iteration, state, num_seeds: Optional[int], eva
             for j, i in enumerate(seeds):
                 one = _seed_slice(light, i)
                 metrics[j] = dict(accs[j].summary(_seed_slice(train_m, i)), **evaluates[j](one, it + 1))
-                accs[j] = _Accumulator()
+                accs[j] = EpisodeAccumulator()
                 metrics[j].update(env_steps=int(one.env_steps), wall_time=time.perf_counter() - t0, iteration=it + 1)
                 if progress_fns[j] is not None:
                     progress_fns[j](int(one.env_steps), metrics[j])
@@ -583,12 +617,15 @@ def make_evaluation(env, trainer: Trainer, episode_length: int, seed: int,
     from (seed, iteration), not from the loop's history: a resumed run draws the same evaluation
     episodes as an uninterrupted one. ``mesh``: the evaluations run replicated on its devices (every
     process of a multi-process run evaluates the same episodes)."""
-    eval_new, eval_sched = make_evaluators(env, trainer, trainer.config.eval_episodes, episode_length, mesh)
+    eval_new, eval_sched, eval_sampled = make_evaluators(env, trainer, trainer.config.eval_episodes, episode_length,
+                                                         mesh)
     base_key = jax.random.PRNGKey(seed + 10_000)
     place = (lambda k: k) if mesh is None else (lambda k: sharding.put(k, sharding.replicated(mesh)))  # noqa: E731
 
     def evaluate(state: TrainingState, iteration: int) -> dict:
         k1, k2 = map(place, jax.random.split(jax.random.fold_in(base_key, iteration)))
+        # (A key of its own: the greedy evaluations draw what they drew before it existed.)
+        k3 = place(jax.random.fold_in(jax.random.fold_in(base_key, iteration), 1))
         ev = eval_new(state.new_skill.policy_params, state.normalizer, k1)
         # (device_get first: a multi-process run's arrays are global, this process reads its replica.)
         mean = lambda x: float(jnp.mean(jax.device_get(x)))  # noqa: E731
@@ -597,16 +634,25 @@ def make_evaluation(env, trainer: Trainer, episode_length: int, seed: int,
             ev = eval_sched(state.scheduler.policy_params, state.new_skill.policy_params, state.normalizer, k2)
             out["eval/scheduler_success"] = mean(ev["success"])
             out["eval/scheduler_return"] = mean(ev["return"])
+        if trainer.config.method == "skills":  # the scheduler as it collects; its critic at the reset states
+            ev = eval_sampled(state.scheduler.policy_params, state.scheduler.critic_params,
+                              state.new_skill.policy_params, state.normalizer, k3)
+            out["eval/scheduler_sampled_success"] = mean(ev["success"])
+            out["eval/scheduler_sampled_return"] = mean(ev["return"])
+            out["eval/scheduler_discounted_return"] = mean(ev["discounted_return"])
+            out["eval/scheduler_value_at_reset"] = mean(ev["value_at_reset"])
         return out
 
     return evaluate
 
 
-class _Accumulator:
+class EpisodeAccumulator:
     """Training-episode statistics summed over the iterations between two reports."""
 
     SUMMED = ("episodes", "nonfinite_transitions", "skill_histogram", "length_histogram", "skill_steps",
-              "skill_runs")
+              "skill_runs", "entropy_i_sum", "entropy_k_sum")
+    # Sums reported as means per decision (``summary``), not as sums.
+    PER_DECISION = {"entropy_i_sum": "decision_entropy_i", "entropy_k_sum": "decision_entropy_k"}
     WEIGHTED = ("episode_return", "episode_success")  # means over the episodes that ended
 
     def __init__(self):
@@ -630,7 +676,7 @@ class _Accumulator:
         return {"sums": {k: _to_py(v) for k, v in self.sums.items()}, "weighted": dict(self.weighted)}
 
     @classmethod
-    def from_dict(cls, d: Optional[dict]) -> "_Accumulator":
+    def from_dict(cls, d: Optional[dict]) -> "EpisodeAccumulator":
         acc = cls()
         if d:
             acc.sums = {k: np.asarray(v, np.float64) for k, v in d["sums"].items()}
@@ -643,6 +689,18 @@ class _Accumulator:
         n = float(self.sums.get("episodes", 0.0))
         for k, v in self.weighted.items():  # NaN when no training episode ended in the interval
             out[k] = v / n if n > 0 else float("nan")
+        # The scheduler's decisions in the interval: entropies per decision, shares per skill / length.
+        hist = {k: np.asarray(self.sums[k], np.float64) for k in ("skill_histogram", "length_histogram")
+                if k in self.sums}
+        decisions = float(np.sum(hist["skill_histogram"])) if "skill_histogram" in hist else 0.0
+        for k, name in self.PER_DECISION.items():
+            out.pop(k, None)
+            if k in self.sums:
+                out[name] = float(self.sums[k]) / decisions if decisions > 0 else float("nan")
+        for k, name in (("skill_histogram", "skill_share"), ("length_histogram", "length_share")):
+            if k in hist:
+                total = float(np.sum(hist[k]))
+                out[name] = _to_py(hist[k] / total) if total > 0 else [float("nan")] * int(hist[k].size)
         return out
 
 

@@ -255,12 +255,12 @@ def test_cpu_recipe_fills_the_fields_a_config_file_leaves():
 def test_training_episode_stats_are_nan_when_no_episode_ended():
     """An evaluation interval shorter than an episode has no training episode to average: NaN (shown as
     n/a), not a success of 0."""
-    from parallel_skills.train import _Accumulator
+    from parallel_skills.train import EpisodeAccumulator
     from training.logging_utils import Progress
 
     m = {k: np.zeros(3) if k.endswith("histogram") or k.startswith("skill_") else np.float32(0.0)
-         for k in _Accumulator.SUMMED + ("episode_return", "episode_success")}
-    acc = _Accumulator()
+         for k in EpisodeAccumulator.SUMMED + ("episode_return", "episode_success")}
+    acc = EpisodeAccumulator()
     acc.add(m)
     out = acc.summary({"eval/new_skill_success": 0.5, "eval/new_skill_return": 1.0, "new_skill_selection_rate": 0.2})
     assert np.isnan(out["episode_success"]) and np.isnan(out["episode_return"])

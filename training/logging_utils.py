@@ -112,7 +112,7 @@ def scalar_metrics(metrics: dict, skill_names: Optional[Sequence[str]] = None,
         if isinstance(value, bool) or isinstance(value, (int, float)):
             out[key] = float(value)
         elif isinstance(value, list) and value and all(isinstance(v, (int, float)) for v in value):
-            if key == "length_histogram" and lengths is not None and len(lengths) == len(value):
+            if key in ("length_histogram", "length_share") and lengths is not None and len(lengths) == len(value):
                 labels = [f"k{k}" for k in lengths]
             elif key.startswith("skill_"):
                 labels = skill_labels(len(value), skill_names)

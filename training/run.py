@@ -49,7 +49,11 @@ CSV_FIELDS = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skil
               "eval/scheduler_return", "episode_success", "episode_return", "new_skill_selection_rate",
               "scheduler/critic_loss", "new_skill/critic_loss", "scheduler/policy_entropy_i", "skill_histogram",
               "length_histogram", "skill_steps", "skill_runs", "scheduler/q_mean", "new_skill/q_mean",
-              "new_skill/crr_weight_mean", "new_skill/policy_log_std_mean", "rss_mb"]
+              "new_skill/crr_weight_mean", "new_skill/policy_log_std_mean", "rss_mb",
+              # Scheduler diagnostics (docs/scheduler.md): as it collects, its decisions, its replay.
+              "eval/scheduler_sampled_success", "eval/scheduler_sampled_return", "eval/scheduler_discounted_return",
+              "eval/scheduler_value_at_reset", "decision_entropy_i", "decision_entropy_k", "skill_share",
+              "length_share", "replay_rewarded_fraction", "scheduler/policy_entropy_k"]
 # Without --checkpoint_every: checkpoint at evaluations, but at most once a minute (a lift run on a
 # CPU evaluates every ~10 s; a checkpoint with its replay takes ~1 s there).
 CHECKPOINT_MIN_SECONDS = 60.0

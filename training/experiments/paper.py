@@ -70,6 +70,17 @@ class Variant:
     kind: str = "method"  # "method" (a method or one of its settings), "ablation" or "skill_set"
 
 
+def setting_label(key: str) -> str:
+    """A setting's part of a variant's directory name: the field's name (``new_skill.mpo_alpha`` ->
+    ``mpo_alpha``), or ``section_field`` for a field both learners have (``scheduler.n_step`` ->
+    ``scheduler_n_step``), so that the name says which learner it sets."""
+    from parallel_skills.config import NewSkillConfig, SchedulerConfig
+
+    *path, field = key.split(".")
+    shared = {f.name for f in dataclasses.fields(SchedulerConfig)} & {f.name for f in dataclasses.fields(NewSkillConfig)}
+    return "_".join(path + [field]) if path and field in shared else field
+
+
 def parse_variant(text: str, methods) -> Variant:
     """``NAME`` or ``NAME[a.b=v,...]`` (NAME a method or an ablation); UsageError otherwise."""
     m = _VARIANT.match(text.strip())
@@ -101,7 +112,7 @@ def parse_variant(text: str, methods) -> Variant:
         for p in path:
             node = node.setdefault(p, {})
         node[last] = parsed
-        parts.append(f"{key.rsplit('.', 1)[-1]}={value}")
+        parts.append(f"{setting_label(key)}={value}")
     return Variant(name="-".join([name] + parts), method=method, config=config, run_args=run_args, kind=kind)
 
 
