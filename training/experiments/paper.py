@@ -21,7 +21,9 @@ variant: success at fixed fractions of the budget, wall time per run and in tota
 ``--budgets task=N,...`` sets env steps per task (``BUDGETS`` otherwise). ``--jobs J`` runs J
 trainings at once, each pinned to its own CPU core. ``--dry_run`` prints the plan only;
 ``--report_only`` writes the plots and table from the runs on disk (of ``--seeds``) and trains
-nothing (e.g. sweep settings run on fewer seeds than the defaults).
+nothing (e.g. sweep settings run on fewer seeds than the defaults). ``--archive DIR`` copies every
+run's records without machine paths (``training.archive``) to ``DIR/<task>/<variant>/s<seed>/``
+(the repository keeps them in ``docs/results/paper_runs``).
 """
 
 from __future__ import annotations
@@ -284,6 +286,21 @@ def write_results(out: str, tasks: list, variants: list, seeds: list, budgets: d
     return written + [path]
 
 
+def archive_runs(out: str, archive: str, tasks: list, variants: list, seeds: list) -> list:
+    """``training.archive`` of every run of the plan that has metrics, into
+    ``archive/<task>/<variant>/s<seed>/`` (paths under ``out`` recorded as ``runs/paper/...``)."""
+    from training.archive import archive_run
+
+    written = []
+    for task in tasks:
+        for v in variants:
+            for seed in seeds:
+                run_dir = os.path.join(out, task, v.name, f"s{seed}")
+                if os.path.isfile(os.path.join(run_dir, "metrics.csv")):
+                    written += archive_run(run_dir, os.path.join(archive, task, v.name, f"s{seed}"), root=out)
+    return written
+
+
 def main(argv=None):
     from parallel_skills.config import TrainConfig
 
@@ -300,6 +317,9 @@ def main(argv=None):
     p.add_argument("--dry_run", action="store_true")
     p.add_argument("--report_only", action="store_true",
                    help="write the plots and results.md from the runs of --seeds on disk; train nothing")
+    p.add_argument("--archive", default=None,
+                   help="also copy each run's metrics.csv, config.json and export.json (machine paths taken out: "
+                        "training.archive) to ARCHIVE/<task>/<variant>/s<seed>/, e.g. docs/results/paper_runs")
     args = p.parse_args(argv)
 
     def plan():
@@ -365,6 +385,9 @@ def main(argv=None):
     failed = [log for (_, log), c in zip(jobs, codes) if c != 0]
     for path in write_results(args.out, task_list, variants, seeds, budgets):
         print(f"written: {path}")
+    if args.archive:
+        for path in archive_runs(args.out, args.archive, task_list, variants, seeds):
+            print(f"archived: {path}")
     if failed:
         print(f"{len(failed)} run(s) failed; their logs: {', '.join(failed)}", file=sys.stderr)
         sys.exit(1)
