@@ -1,0 +1,98 @@
+"""training/experiments/schedules.py: the schedule grammar, one-line errors (exit code 2), and a few
+hand-computable rollouts on kinematic lift (4 envs, short episodes) with the JSON file they write."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from training.cli import UsageError, main_guard
+from training.experiments import schedules as S
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _fails(argv, capsys, *needles):
+    """The command on ``argv`` exits with code 2 and one stderr line starting ``error:``."""
+    with pytest.raises(SystemExit) as e:
+        main_guard(lambda: S.main(argv))
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith("error: "), err
+    for n in needles:
+        assert n in err[0], (n, err[0])
+    return err[0]
+
+
+def test_parse_schedule():
+    s = S.parse_schedule("stack_yellow_on_blue:150,stack_green_on_yellow")
+    assert s.steps == (S.Step("stack_yellow_on_blue", 150), S.Step("stack_green_on_yellow")) and not s.is_random
+    s = S.parse_schedule("reach_green:until+20,lift_green:until,lift_arm_open")
+    assert s.steps == (S.Step("reach_green", "until", 20), S.Step("lift_green", "until"), S.Step("lift_arm_open"))
+    assert S.parse_schedule("lift_green").steps == (S.Step("lift_green"),)
+    assert S.parse_schedule("random").lengths == tuple(range(10, 101, 10))
+    assert S.parse_schedule("random:20-40").lengths == (20, 30, 40)
+    assert S.parse_schedule("random:7-7").lengths == (7,)
+    for bad in ("reach_green,lift_arm_closed", "reach_green:60,lift_arm_closed:10", "reach_green:0,x",
+                "reach_green:-3,x", "reach_green:until+,x", "reach_green:soon,x", ":10,x", "a:10,,b",
+                "random:5-100", "random:100-10", "random:0-10", "random:abc", "random:10", "a:10,random"):
+        with pytest.raises(UsageError, match="bad schedule .*valid forms: NAME:K"):
+            S.parse_schedule(bad)
+
+
+def test_success_tests():
+    assert S.success_test("reach_green.s1") is S.success_test("reach_green")  # a library seed: its base's
+    with pytest.raises(UsageError, match="no success test of its own"):
+        S.success_test("wave_hello")
+
+
+def test_bad_input_is_one_line(capsys, tmp_path):
+    _fails(["reach_green,lift_arm_closed"], capsys, "needs a hold", "valid forms")
+    _fails(["random:5-100"], capsys, "multiple of 10")
+    _fails(["reach_purple:10,lift_arm_closed"], capsys, "no scripted controller 'reach_purple'")
+    _fails(["--task", "nope", "lift_green"], capsys, "unknown manipulation task 'nope'", "triple_stack")
+    _fails(["--task", "reach_green", "random"], capsys, "no skill table", "triple_stack")
+    _fails(["--physics", "bullet", "lift_green"], capsys, "unknown physics 'bullet'")
+    _fails(["--skill_source", "library", "--task", "stack", "stack_green_on_blue"], capsys,
+           "not in the kinematic skill library")
+    _fails(["--seeds", "0,a", "lift_green"], capsys, "--seeds")
+    _fails(["--noise", "-1", "lift_green"], capsys, "--noise")
+    _fails(["--episodes", "0", "lift_green"], capsys, "--episodes")
+    _fails(["lift_green", "lift_green"], capsys, "twice")
+    (tmp_path / "plain").write_text("x")
+    _fails(["--json", str(tmp_path / "plain" / "out.json"), "lift_green"], capsys, "not a directory")
+
+
+def test_command_line_error_exit_code():
+    r = subprocess.run([sys.executable, "-m", "training.experiments.schedules", "reach_green:until+x,lift_green"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    assert r.stderr.startswith("error: bad schedule") and len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_lift_schedules_and_json(tmp_path, capsys):
+    """Lift green, 4 envs, 200 steps, seeds 0 and 1. Open fingers' test holds at the start (the
+    fingers start open), so ``open_fingers:until`` hands over at once (never reached); then reach
+    green for 60 steps and lift the arm closed: green lifted in most episodes. ``random:200-200``
+    runs one skill of lift's useful set for the whole episode, and neither alone lifts green
+    (reach green never closes; the arm closes high above the cubes): success and return 0."""
+    out = tmp_path / "sub" / "schedules.json"
+    S.main(["--task", "lift", "--episodes", "4", "--seeds", "0,1", "--steps", "200", "--json", str(out),
+            "open_fingers:until,reach_green:60,lift_arm_closed", "random:200-200"])
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 1 + 2 * 3, lines  # header, then 2 seeds + a summary per schedule
+    rec = json.loads(out.read_text())
+    assert rec["task"] == "lift" and rec["steps"] == 200 and rec["seeds"] == [0, 1] and rec["noise"] == 0.0
+    seq = rec["results"]["open_fingers:until,reach_green:60,lift_arm_closed"]
+    assert seq["skills"] == ["open_fingers", "reach_green", "lift_arm_closed"]
+    assert seq["success_mean"] >= 0.75 and seq["return_mean"] > 0
+    for r in seq["per_seed"]:
+        assert r["reached"] == [0.0, 1.0, 1.0] and r["start_step"] == [None, 0.0, 60.0], r
+    rnd = rec["results"]["random:200-200"]
+    assert rnd["skills"] == ["reach_green", "lift_arm_closed"]
+    assert rnd["success_mean"] == 0.0 and rnd["return_mean"] == 0.0 and "reached" not in rnd["per_seed"][0]
