@@ -18,9 +18,9 @@ def test_variants():
     v = parse_variant("kl_reg[new_skill.mpo_epsilon=1,new_skill.mpo_alpha=0]", METHODS)
     assert v.method == "kl_reg" and v.name == "kl_reg-mpo_epsilon=1-mpo_alpha=0"
     # A field both learners have is named with its learner.
-    v = parse_variant("skills[scheduler.n_step=10,new_skill.n_step=50]", METHODS)
-    assert v.name == "skills-scheduler_n_step=10-new_skill_n_step=50"
-    assert v.config == {"scheduler": {"n_step": 10}, "new_skill": {"n_step": 50}}
+    both = parse_variant("skills[scheduler.n_step=10,new_skill.n_step=50]", METHODS)
+    assert both.name == "skills-scheduler_n_step=10-new_skill_n_step=50"
+    assert both.config == {"scheduler": {"n_step": 10}, "new_skill": {"n_step": 50}}
     assert v.config == {"new_skill": {"mpo_epsilon": 1, "mpo_alpha": 0}}
     k1 = parse_variant("k1", METHODS)
     assert k1.method == "skills" and k1.config == ABLATIONS["k1"][1]
