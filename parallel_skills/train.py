@@ -243,7 +243,6 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig, mesh
         ts, traj, stats = collect_insert(ts, k_collect)
         sched_state, new_state, sched_m, new_m = learn(ts, k_learn)
         metrics = iteration_metrics(traj, stats, n_total, sc.num_lengths)
-        metrics["replay_rewarded_fraction"] = replay.rewarded_fraction(ts.replay)
         metrics.update({f"scheduler/{k}": v for k, v in sched_m.items()})
         metrics.update({f"new_skill/{k}": v for k, v in new_m.items()})
         ts = ts.replace(scheduler=sched_state, new_skill=new_state, key=key,
@@ -568,6 +567,8 @@ def _host_loop(trainer: Trainer, iteration, state, num_seeds: Optional[int], eva
     [last metrics per seed])."""
     config = trainer.config
     seeds = [None] if num_seeds is None else list(range(num_seeds))
+    rewarded_fraction = jax.jit(trainer.replay.rewarded_fraction if num_seeds is None
+                                else jax.vmap(trainer.replay.rewarded_fraction))
     start = int(jax.device_get(state.iteration).reshape(-1)[0])
     spi = trainer.steps_per_iteration
     num_iterations = max(1, math.ceil(int(num_timesteps) / spi))
@@ -591,10 +592,13 @@ def _host_loop(trainer: Trainer, iteration, state, num_seeds: Optional[int], eva
         evaluated = (it + 1) % config.eval_every == 0 or last
         if evaluated:
             # (Evaluations read the policies and the statistics: the replay is not sliced for them.)
+            # (O(buffer): read at evaluations only, not in the iteration.)
+            rewarded = jax.device_get(rewarded_fraction(state.replay)).reshape(-1)
             light = state if num_seeds is None else state.replace(replay=None, actor=None, pending=None)
             for j, i in enumerate(seeds):
                 one = _seed_slice(light, i)
-                metrics[j] = dict(accs[j].summary(_seed_slice(train_m, i)), **evaluates[j](one, it + 1))
+                metrics[j] = dict(accs[j].summary(_seed_slice(train_m, i)), **evaluates[j](one, it + 1),
+                                  replay_rewarded_fraction=float(rewarded[j]))
                 accs[j] = EpisodeAccumulator()
                 metrics[j].update(env_steps=int(one.env_steps), wall_time=time.perf_counter() - t0, iteration=it + 1)
                 if progress_fns[j] is not None:

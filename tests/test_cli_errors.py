@@ -15,6 +15,7 @@ import sys
 import pytest
 
 from training.run import main
+from cli_checks import one_line_error
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TINY = {"num_envs": 4, "unroll_length": 5, "replay_size": 200, "eval_episodes": 2,
@@ -36,15 +37,7 @@ def _snapshot(root):
 
 def _fails(argv, capsys, *needles):
     """main(argv) exits with code 2 and one stderr line containing every needle."""
-    with pytest.raises(SystemExit) as e:
-        main(argv)
-    assert e.value.code == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1, err
-    assert err[0].startswith("error: "), err
-    for n in needles:
-        assert n in err[0], (n, err[0])
-    return err[0]
+    return one_line_error(lambda: main(argv), capsys, *needles)
 
 
 @pytest.fixture

@@ -12,21 +12,14 @@ import pytest
 
 from training.cli import UsageError, main_guard
 from training.experiments import schedules as S
+from cli_checks import one_line_error
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def _fails(argv, capsys, *needles):
     """The command on ``argv`` exits with code 2 and one stderr line starting ``error:``."""
-    with pytest.raises(SystemExit) as e:
-        main_guard(lambda: S.main(argv))
-    assert e.value.code == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1, err
-    assert err[0].startswith("error: "), err
-    for n in needles:
-        assert n in err[0], (n, err[0])
-    return err[0]
+    return one_line_error(lambda: main_guard(lambda: S.main(argv)), capsys, *needles)
 
 
 def test_parse_schedule():
