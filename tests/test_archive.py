@@ -35,3 +35,21 @@ def test_archive_of_a_directory_without_metrics_is_one_line(tmp_path):
                        capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.startswith("error:") and len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "d").exists()
+
+
+def test_archive_with_the_new_skill_copies_it_and_its_portable_sidecar(tmp_path):
+    run = tmp_path / "paper" / "s0"
+    run.mkdir(parents=True)
+    (run / "metrics.csv").write_text("env_steps\n1\n")
+    (run / "new_skill.npz").write_bytes(b"\x00weights")
+    (run / "new_skill.json").write_text(json.dumps({"command": f"python -m training.run --out {run}", "seed": 0}))
+    written = archive_run(str(run), str(tmp_path / "a"), root=str(tmp_path / "paper"), new_skill=True)
+    assert sorted(os.path.basename(w) for w in written) == ["metrics.csv", "new_skill.json", "new_skill.npz"]
+    assert (tmp_path / "a" / "new_skill.npz").read_bytes() == b"\x00weights"
+    assert json.loads((tmp_path / "a" / "new_skill.json").read_text())["command"] == \
+        "python -m training.run --out runs/paper/s0"
+    (run / "new_skill.npz").unlink()  # an unfinished run: refused in one line, nothing written
+    r = subprocess.run([sys.executable, "-m", "training.archive", str(run), str(tmp_path / "b"), "--new_skill"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.startswith("error:") and len(r.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "b").exists()

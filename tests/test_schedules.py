@@ -89,3 +89,43 @@ def test_lift_schedules_and_json(tmp_path, capsys):
     rnd = rec["results"]["random:200-200"]
     assert rnd["skills"] == ["reach_green", "lift_arm_closed"]
     assert rnd["success_mean"] == 0.0 and rnd["return_mean"] == 0.0 and "reached" not in rnd["per_seed"][0]
+
+
+def test_probes_report_where_a_schedule_gets_to(tmp_path, capsys):
+    """``--probes``: reach green holds once the 60 reaching steps are done, so its probe is 1 in
+    every episode; lift green's probe is the task's own success (lift's sparse test)."""
+    out = tmp_path / "p.json"
+    S.main(["--task", "lift", "--episodes", "4", "--seeds", "0", "--steps", "200", "--json", str(out),
+            "--probes", "reach_green,lift_green", "reach_green:60,lift_arm_closed"])
+    rec = json.loads(out.read_text())["results"]["reach_green:60,lift_arm_closed"]
+    probes = rec["per_seed"][0]["probes"]
+    assert list(probes) == ["reach_green", "lift_green"] and probes["reach_green"] == 1.0
+    assert probes["lift_green"] == rec["per_seed"][0]["success"] and rec["probes_mean"] == probes
+    assert "probes reach_green 1.00" in capsys.readouterr().out
+
+
+def test_a_trained_new_skill_runs_as_step_new(tmp_path, capsys):
+    """``--new_skill`` (a saved Gaussian-MLP skill, here untrained) is the step ``new``; without it,
+    or with it but no schedule running it, one line."""
+    import jax
+    import jax.numpy as jnp
+
+    import tasks
+    from parallel_skills import networks
+    from parallel_skills.skills import Skill
+
+    env = tasks.make("lift")
+    net = networks.GaussianPolicy(action_size=env.action_size, hidden=(8,))
+    params = {"policy": net.init(jax.random.PRNGKey(0), jnp.zeros((1, env.observation_size))),
+              "obs_mean": jnp.zeros((env.observation_size,)), "obs_std": jnp.ones((env.observation_size,))}
+    Skill.gaussian_mlp("lift_new_skill", params, env.action_size, (8,)).save(str(tmp_path / "new_skill.npz"))
+    out = tmp_path / "n.json"
+    S.main(["--task", "lift", "--episodes", "2", "--seeds", "0", "--steps", "20", "--new_skill", str(tmp_path),
+            "--json", str(out), "reach_green:10,new"])
+    rec = json.loads(out.read_text())["results"]["reach_green:10,new"]
+    assert rec["skills"] == ["reach_green", "new"] and rec["per_seed"][0]["reached"] == [1.0, 1.0]
+    capsys.readouterr()
+    _fails(["--task", "lift", "new"], capsys, "--new_skill is not given")
+    _fails(["--task", "lift", "--new_skill", str(tmp_path), "lift_green"], capsys, "no schedule runs it")
+    _fails(["--task", "lift", "--new_skill", str(tmp_path / "nope.npz"), "new"], capsys, "--new_skill")
+    _fails(["--task", "lift", "--probes", "wave_hello", "lift_green"], capsys, "no success test of its own")

@@ -5,6 +5,8 @@ what a scheduler could earn with a skill set before any learning (docs/schedules
         stack_yellow_on_blue:150,stack_green_on_yellow stack_yellow_on_blue:100,stack_green_on_yellow random
     python -m training.experiments.schedules --task lift reach_green:until+20,lift_arm_closed --noise 0.3
     python -m training.experiments.schedules --task stack --skill_source library random:10-100 --episodes 256
+    python -m training.experiments.schedules --task triple_stack --new_skill RUN_DIR new \
+        --probes stack_yellow_on_blue,lift_green,triple_stack
 
 Each positional argument is one schedule, run on ``--episodes`` envs of ``--task`` (any manipulation
 task, ``tasks.make(task, physics=--physics)``) per seed of ``--seeds``, for ``--steps`` env steps
@@ -37,6 +39,13 @@ it; default 0). Episode success: the task's success test (``state.metrics["succe
 some step of the episode, as in ``parallel_skills.evaluation``. Every step of an episode batch runs
 in one jitted ``lax.scan`` over the vmapped envs.
 
+``--new_skill PATH`` adds a trained new skill (a ``training.run`` directory's ``new_skill.npz``, or
+that directory; mean actions, no collection noise) as the step name ``new``: ``new`` alone is the new
+skill's own evaluation, ``stack_yellow_on_blue:150,new`` asks whether it finishes what a frozen skill
+began. ``--probes NAME,...`` also reports, per schedule, the fraction of episodes in which each named
+success test (a skill's own task, as for ``:until``, or a sparse task) held at some step: where a
+schedule gets to when it does not succeed (e.g. ``--probes stack_yellow_on_blue,lift_green``).
+
 Printed: one line per schedule and seed (success, mean return; for a sequence the mean env step at
 which each of its steps started and, in brackets, the fraction of episodes that reached it), then a
 summary line per schedule (mean over seeds).
@@ -56,6 +65,7 @@ import numpy as np
 from training.cli import Parser, UsageError, check_writable, main_guard, positive_int, write_json_atomic
 
 SOURCES = ("scripted", "library")
+NEW_SKILL = "new"  # the step name of --new_skill
 SKILL_SETS = ("useful", "useful+distractors")
 K_GRID = 10  # spacing of the random scheduler's hold lengths
 DEFAULT_K = (10, 100)
@@ -177,11 +187,13 @@ def check_schedule(schedule: Schedule) -> None:
             success_test(s.skill)
 
 
-def make_rollout(env, skills, schedule: Schedule, num_envs: int, steps: int, noise: float):
+def make_rollout(env, skills, schedule: Schedule, num_envs: int, steps: int, noise: float, probes: tuple = ()):
     """jit ``fn(key) -> dict`` of per-episode arrays: ``success`` [B] (the task's success test held at
-    some step), ``return`` [B], and for a sequence of P steps ``reached`` [P, B] (whether each step
-    started) and ``start`` [P, B] (the env step it started at, -1 if never).
+    some step), ``return`` [B], for a sequence of P steps ``reached`` [P, B] (whether each step
+    started) and ``start`` [P, B] (the env step it started at, -1 if never), and with ``probes`` (Q
+    names with success tests, ``success_test``) ``probes`` [Q, B]: each test held at some step.
     ``skills``: the ``Skill`` objects of ``schedule_skills`` (same order)."""
+    probe_tests = [success_test(name) for name in probes]
     from parallel_skills.acting import Actor
     from parallel_skills.counters import advance_counters
     from parallel_skills.skills import SkillSet
@@ -257,17 +269,40 @@ def make_rollout(env, skills, schedule: Schedule, num_envs: int, steps: int, noi
             action = actor.actions(state.obs, state.obs, None, i, k_a, k_s, greedy=False)
             state = jax.vmap(env.step)(state, action)
             success = jnp.maximum(carry["success"], state.metrics.get("success", zero))
-            return dict(state=state, sched=sched, ret=carry["ret"] + state.reward, success=success), None
+            held = carry["probes"]
+            if probe_tests:
+                inp = inputs_from_obs(state.obs)
+                held = held | jnp.stack([test(inp) > 0.5 for test in probe_tests])
+            return dict(state=state, sched=sched, ret=carry["ret"] + state.reward, success=success,
+                        probes=held), None
 
-        carry0 = dict(state=state, sched=sched0, ret=zero, success=zero)
+        carry0 = dict(state=state, sched=sched0, ret=zero, success=zero,
+                      probes=jnp.zeros((len(probe_tests), b), bool))
         carry, _ = jax.lax.scan(body, carry0, (jnp.arange(steps), jax.random.split(k_run, steps)))
-        out = {"success": carry["success"], "return": carry["ret"]}
+        out = {"success": carry["success"], "return": carry["ret"], "probes": carry["probes"].astype(jnp.float32)}
         if not schedule.is_random:
             out["reached"] = carry["sched"]["reached"].astype(jnp.float32)
             out["start"] = carry["sched"]["start"]
         return out
 
     return rollout
+
+
+def load_new_skill(path, env):
+    """``--new_skill`` (a ``training.run`` directory or a ``new_skill.npz``) as a ``Skill`` named
+    ``NEW_SKILL`` acting with its mean action and no collection noise; UsageError (one line) when
+    not given or not a new skill of this task's sizes."""
+    from parallel_skills.skills import Skill
+
+    if not path:
+        raise UsageError(f"a schedule runs {NEW_SKILL!r} but --new_skill is not given (a training.run "
+                         f"directory or its new_skill.npz)")
+    file = os.path.join(path, "new_skill.npz") if os.path.isdir(path) else path
+    try:
+        skill = Skill.load(file, obs_size=env.observation_size, action_size=env.action_size)
+    except ValueError as e:
+        raise UsageError(f"--new_skill: {str(e).splitlines()[0]}") from None
+    return dataclasses.replace(skill, name=NEW_SKILL, collection_noise=False)
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -312,8 +347,15 @@ def main(argv=None):
     p.add_argument("--seeds", default="0,1,2", help="comma-separated seeds; each its own episodes")
     p.add_argument("--noise", type=float, default=0.0, help="std of the Gaussian noise on the skills' actions")
     p.add_argument("--steps", type=positive_int, default=None, help="episode length (default: the env's)")
+    p.add_argument("--new_skill", default=None,
+                   help="a trained new skill (a training.run directory or its new_skill.npz), step name 'new'")
+    p.add_argument("--probes", default="", help="comma-separated success tests to report per schedule "
+                   "(skills' own tasks or sparse tasks, as for NAME:until)")
     p.add_argument("--json", default=None, help="write the figures to this file")
     args = p.parse_args(argv)
+    probes = tuple(n for n in args.probes.split(",") if n)
+    for name in probes:
+        success_test(name)
     schedules = [parse_schedule(s) for s in args.schedules]
     seeds = parse_seeds(args.seeds)
     if not (np.isfinite(args.noise) and args.noise >= 0):
@@ -331,17 +373,22 @@ def main(argv=None):
     from training.skill_library import load_skills
 
     loaded = {}  # ValueError (one line) for an unknown skill or one missing from the library
+    if any(NEW_SKILL in names[s.text] for s in schedules):
+        loaded[NEW_SKILL] = load_new_skill(args.new_skill, env)
     for s in schedules:
         for n in names[s.text]:
             if n not in loaded:
                 loaded[n] = load_skills([n], args.physics, args.skill_source, obs_size=env.observation_size,
                                         action_size=env.action_size)[0]
+    if args.new_skill and NEW_SKILL not in loaded:
+        raise UsageError(f"--new_skill is given but no schedule runs it (its step name is {NEW_SKILL!r})")
     print(f"task {args.task}  physics {args.physics}  skills {args.skill_source}  noise {args.noise:g}  "
           f"{args.episodes} episodes x seeds {','.join(map(str, seeds))}  {steps} steps", flush=True)
     results = {}
     for s in schedules:
         t0 = time.time()
-        rollout = make_rollout(env, [loaded[n] for n in names[s.text]], s, args.episodes, steps, args.noise)
+        rollout = make_rollout(env, [loaded[n] for n in names[s.text]], s, args.episodes, steps, args.noise,
+                               probes)
         per_seed = []
         for seed in seeds:
             t1 = time.time()
@@ -354,12 +401,17 @@ def main(argv=None):
                 rec["start_step"] = [float(np.mean(st[st >= 0])) if np.any(st >= 0) else None for st in out["start"]]
                 reached = "  steps start at t " + " ".join(
                     "never" if t is None else f"{t:.0f} ({r:.2f})" for t, r in zip(rec["start_step"], rec["reached"]))
+            if probes:
+                rec["probes"] = {n: float(x) for n, x in zip(probes, np.mean(out["probes"], axis=1))}
+                reached += "  probes " + " ".join(f"{n} {x:.2f}" for n, x in rec["probes"].items())
             per_seed.append(rec)
             print(f"{s.text}  seed {seed}: success {rec['success']:.3f}  return {rec['return']:.1f}{reached}  "
                   f"({rec['wall_time_s']} s)", flush=True)
         succ = [r["success"] for r in per_seed]
         summary = {"success_mean": float(np.mean(succ)), "return_mean": float(np.mean([r["return"] for r in per_seed])),
                    "skills": names[s.text], "per_seed": per_seed, "wall_time_s": round(time.time() - t0, 1)}
+        if probes:
+            summary["probes_mean"] = {n: float(np.mean([r["probes"][n] for r in per_seed])) for n in probes}
         results[s.text] = summary
         print(f"{s.text}  mean: success {summary['success_mean']:.3f} ({' '.join(f'{x:.3f}' for x in succ)})  "
               f"return {summary['return_mean']:.1f}  [{summary['wall_time_s']} s]", flush=True)
