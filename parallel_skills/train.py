@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from parallel_skills import learners, networks, sharding
+from parallel_skills import learners, methods, networks, sharding
 from parallel_skills import normalization as obs_norm
 from parallel_skills.acting import Actor, ActorState, StepStats
 from parallel_skills.config import TrainConfig, resolve, updates_per_iteration
@@ -74,21 +74,21 @@ class Trainer:
 
 def make_actor(environment, skills: Sequence[Skill], config: TrainConfig, num_envs: int) -> Actor:
     """The acting functions of ``num_envs`` envs (``skills``: the frozen ones; none from scratch).
-    SkillS's scheduler chooses (RHPO's categorical, a scheduler with K = {1}, for rhpo); with every
-    other method the new skill always acts."""
+    The scheduler chooses when the method says so (``Method.scheduler_acts``: SkillS's scheduler,
+    RHPO's categorical, a scheduler with K = {1}); otherwise the new skill always acts."""
     n_total = len(skills) + 1  # frozen skills + the new skill (index N)
     return Actor(env=environment, skill_set=SkillSet(skills),
                  scheduler_apply=learners.make_scheduler_apply(n_total, config.scheduler),
                  new_skill_apply=learners.make_new_skill_apply(int(environment.action_size), config.new_skill),
                  skill_lengths=tuple(config.scheduler.skill_lengths), num_envs=int(num_envs),
-                 skill_noise_std=config.skill_noise_std, scheduler_acts=config.method in ("skills", "rhpo"))
+                 skill_noise_std=config.skill_noise_std, scheduler_acts=methods.get(config.method).scheduler_acts)
 
 
 def make_replay(environment, config: TrainConfig) -> Replay:
     sc, nc = config.scheduler, config.new_skill
     capacity = max(int(config.replay_size), config.steps_per_iteration, sc.batch_size, nc.batch_size)
     # (The scheduler's n-step rows only where its learner runs: SkillS.)
-    sched_n = int(sc.n_step) if config.method == "skills" else 1
+    sched_n = int(sc.n_step) if methods.get(config.method).learns_scheduler else 1
     return Replay(capacity=capacity, num_envs=int(config.num_envs), obs_size=int(environment.observation_size),
                   action_size=int(environment.action_size), scheduler_batch_size=sc.batch_size,
                   new_skill_batch_size=nc.batch_size, n_step=int(nc.n_step), discount=nc.discount,
@@ -146,24 +146,25 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig, mesh
     parallel over the mesh's devices and computes what it computes on one device."""
     if config.num_envs is None or config.replay_size is None:
         raise ValueError("make_trainer needs a resolved config (see parallel_skills.config.resolve)")
-    initial_skill = finetune_source(skills, config) if config.method == "finetune" else None
-    skills = [] if config.method in ("scratch", "finetune") else list(skills)
+    method = methods.get(config.method)
+    initial_skill = finetune_source(skills, config) if method.starts_from_skill else None
+    skills = list(skills) if method.frozen_skills else []
     n_total = len(skills) + 1  # frozen skills + the new skill (index N)
     sc, nc = config.scheduler, config.new_skill
     obs_size, action_size = int(environment.observation_size), int(environment.action_size)
-    learn_scheduler = config.method == "skills"
+    learn_scheduler = method.learns_scheduler
     steps_per_iter = config.steps_per_iteration
     n_sched = updates_per_iteration(sc.samples_per_insert, steps_per_iter, sc.batch_size)
     n_new = updates_per_iteration(nc.samples_per_insert, steps_per_iter, nc.batch_size)
     actor = make_actor(environment, skills, config, config.num_envs)
     replay = make_replay(environment, config)
 
-    # kl_reg / dagger: the new skill's loss reads the frozen skills' actions at its batch's states;
-    # rhpo at its states and next states (the mixture's components).
-    rhpo = config.method == "rhpo"
-    with_teacher = nc.mpo_alpha < 1.0 and nc.baseline in ("kl_reg", "dagger")
+    # A teacher baseline (kl_reg / dagger): the new skill's loss reads the frozen skills' actions at
+    # its batch's states; the mixture learner (rhpo) at its states and next states (the components).
+    rhpo = method.mixture_learner
+    with_teacher = nc.reads_teacher
     if rhpo and not skills:
-        raise ValueError("method rhpo needs at least one frozen skill (its mixture's components)")
+        raise ValueError(f"method {method.name} needs at least one frozen skill (its mixture's components)")
     if mesh is not None and mesh.size > 1:
         sharding.check_divisible(config, mesh.size)
         envs = lambda tree: sharding.constrain(tree, mesh, config.num_envs)  # noqa: E731
@@ -624,6 +625,7 @@ def make_evaluation(env, trainer: Trainer, episode_length: int, seed: int,
     eval_new, eval_sched, eval_sampled = make_evaluators(env, trainer, trainer.config.eval_episodes, episode_length,
                                                          mesh)
     base_key = jax.random.PRNGKey(seed + 10_000)
+    method = methods.get(trainer.config.method)
     place = (lambda k: k) if mesh is None else (lambda k: sharding.put(k, sharding.replicated(mesh)))  # noqa: E731
 
     def evaluate(state: TrainingState, iteration: int) -> dict:
@@ -634,11 +636,11 @@ def make_evaluation(env, trainer: Trainer, episode_length: int, seed: int,
         # (device_get first: a multi-process run's arrays are global, this process reads its replica.)
         mean = lambda x: float(jnp.mean(jax.device_get(x)))  # noqa: E731
         out = {"eval/new_skill_success": mean(ev["success"]), "eval/new_skill_return": mean(ev["return"])}
-        if trainer.config.method in ("skills", "rhpo"):  # the scheduler acting (rhpo: the whole mixture)
+        if method.scheduler_acts:  # the scheduler acting (rhpo: the whole mixture)
             ev = eval_sched(state.scheduler.policy_params, state.new_skill.policy_params, state.normalizer, k2)
             out["eval/scheduler_success"] = mean(ev["success"])
             out["eval/scheduler_return"] = mean(ev["return"])
-        if trainer.config.method == "skills":  # the scheduler as it collects; its critic at the reset states
+        if method.learns_scheduler:  # the scheduler as it collects; its critic at the reset states
             ev = eval_sampled(state.scheduler.policy_params, state.scheduler.critic_params,
                               state.new_skill.policy_params, state.normalizer, k3)
             out["eval/scheduler_sampled_success"] = mean(ev["success"])

@@ -35,7 +35,8 @@ from training import rundir
 from training.cli import Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int
 from training.logging_utils import Progress, TensorBoardLogger, format_row, release_free_memory, resident_mb
 from training.rundir import RunRecord
-from parallel_skills.config import RECIPES, TrainConfig
+from parallel_skills import methods
+from parallel_skills.config import RECIPES
 
 # CPU: the README quickstart must end within 10 minutes on 2 cores (kinematic lift, CPU recipe,
 # seed 0: 0.84 at 218k and 256k; other seeds are slower; README, docs/scaling.md).
@@ -44,7 +45,6 @@ DEFAULT_TIMESTEPS = {"cpu": 256_000, "accelerator": 20_000_000}
 # that conflict with the run's config.json).
 DEFAULTS = dict(task="lift", physics="kinematic", seed=0, skills="useful", skill_source="scripted", method="skills",
                 eval_episodes=32)
-METHODS = TrainConfig.METHODS
 CSV_FIELDS = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skill_return", "eval/scheduler_success",
               "eval/scheduler_return", "episode_success", "episode_return", "new_skill_selection_rate",
               "scheduler/critic_loss", "new_skill/critic_loss", "scheduler/policy_entropy_i", "skill_histogram",
@@ -87,10 +87,8 @@ def build_parser():
     p.add_argument("--skill_dir", default=None,
                    help="directory of your own skills (NAME.npz + NAME.json, as Skill.save writes them): a skill of "
                         "the set found there is loaded from it instead of --skill_source")
-    p.add_argument("--method", default=None, choices=list(METHODS),
-                   help="skills (SkillS, default); the new skill alone: scratch, finetune (from --finetune_from), "
-                        "kl_reg / dagger (the skill set as its prior / teacher); rhpo (a mixture of the skills and "
-                        "the new skill); README \"Baselines\"")
+    p.add_argument("--method", default=None, choices=list(methods.names()),
+                   help="; ".join(f"{m.name}: {m.help}" for m in methods.all_methods()) + "; README \"Baselines\"")
     p.add_argument("--finetune_from", default=None,
                    help="--method finetune: the network skill the new skill starts from (library name, or one in "
                         "--skill_dir); default the task's last useful skill, from the library")
@@ -206,19 +204,21 @@ def prepare_new(args, argv, num_devices: int = 1, write: bool = True):
              "eval_episodes": args.eval_episodes}
     cfg = dataclasses.replace(cfg, **{k: v for k, v in flags.items() if v is not None})
     method = cfg.method
-    if method not in METHODS:  # (TrainConfig validates it too)
-        raise UsageError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
-    if args.finetune_from is not None and method != "finetune":
-        raise UsageError(f"--finetune_from is for --method finetune, not {method}")
-    if method == "scratch":
-        names = []
-    elif method == "finetune":
+    if method not in methods.names():  # (TrainConfig validates it too)
+        raise UsageError(f"unknown method {method!r}; valid: {', '.join(methods.names())}")
+    spec = methods.get(method)
+    if args.finetune_from is not None and not spec.starts_from_skill:
+        starting = " / ".join(m.name for m in methods.all_methods() if m.starts_from_skill)
+        raise UsageError(f"--finetune_from is for --method {starting}, not {method}")
+    if spec.starts_from_skill:
         if args.skill_source == "scripted" and not args.skill_dir:
-            raise UsageError("--method finetune starts from a network skill: use --skill_source library (the "
-                             "default for finetune) or --skill_dir, not scripted controllers")
+            raise UsageError(f"--method {method} starts from a network skill: use --skill_source library (the "
+                             f"default for {method}) or --skill_dir, not scripted controllers")
         if args.skill_source is None:
             a["skill_source"] = "library"
         names = [args.finetune_from or skill_library.skill_names(a["task"], "useful")[-1]]
+    elif not spec.frozen_skills:
+        names = []
     else:
         names = skill_library.skill_names(a["task"], a["skills"])
 
@@ -250,7 +250,7 @@ def prepare_new(args, argv, num_devices: int = 1, write: bool = True):
     skill_dir = os.path.abspath(args.skill_dir) if args.skill_dir else None
     loaded = skill_library.load_skills(names, a["physics"], a["skill_source"], env.observation_size,
                                        env.action_size, skill_dir=skill_dir)  # exist, fit (ValueError: one line)
-    if method == "finetune":
+    if spec.starts_from_skill:
         from parallel_skills.train import finetune_source
 
         finetune_source(loaded, resolved)  # a network of the new skill's sizes
@@ -298,7 +298,7 @@ def prepare_resume(args, num_devices: int = 1):
              "skill_dir": (os.path.abspath(args.skill_dir) if args.skill_dir else None, run.skill_dir),
              "seed": (args.seed, run.seed),
              "method": (args.method, resolved.method), "recipe": (args.recipe, resolved.recipe),
-             "finetune_from": (args.finetune_from, run.skills[0] if resolved.method == "finetune" and run.skills
+             "finetune_from": (args.finetune_from, run.skills[0] if methods.get(resolved.method).starts_from_skill and run.skills
                                else None),
              "num_envs": (args.num_envs, resolved.num_envs), "episode_length": (args.episode_length, run.episode_length),
              "eval_every": (args.eval_every, resolved.eval_every),
@@ -772,12 +772,13 @@ def _write_outputs(out, run, resolved, env, skills, make_policy, params, metrics
         _write_video(out, env, make_policy, params, seed, int(run.episode_length or 0) or None)
     # The export's scheduler chooses among the frozen skills: none for finetune, whose one skill is
     # where the new skill started (recorded as finetuned_from).
-    frozen = [] if resolved.method == "finetune" else list(skills)
+    starts_from_skill = methods.get(resolved.method).starts_from_skill
+    frozen = [] if starts_from_skill else list(skills)
     meta = {"skills": [s.name for s in frozen], "skill_sources": skill_sources(frozen, run.physics), "seed": seed,
             "env_steps": metrics["env_steps"], "command": run.command,
             "skill_set": run.skill_set, "num_timesteps": num_timesteps,
             "success": metrics["eval/new_skill_success"], "return": metrics["eval/new_skill_return"]}
-    if resolved.method == "finetune":
+    if starts_from_skill:
         meta["finetuned_from"] = names
     if run.extensions:
         meta["extensions"] = run.extensions

@@ -302,7 +302,7 @@ def archive_runs(out: str, archive: str, tasks: list, variants: list, seeds: lis
 
 
 def main(argv=None):
-    from parallel_skills.config import TrainConfig
+    from parallel_skills import methods as method_registry
 
     argv = list(sys.argv[1:] if argv is None else argv)
     p = Parser(prog="python -m training.experiments.paper", description=__doc__.splitlines()[0])
@@ -334,7 +334,7 @@ def main(argv=None):
             items = re.findall(r"[a-z0-9_]+(?:\[[^\]]*\])?", args.methods)
         else:
             items = [x for x in args.methods.split(sep) if x.strip()]
-        variants = [parse_variant(x, TrainConfig.METHODS) for x in items]
+        variants = [parse_variant(x, method_registry.names()) for x in items]
         if len({v.name for v in variants}) != len(variants):
             raise UsageError("a variant is listed twice")
         try:
