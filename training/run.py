@@ -293,13 +293,13 @@ def prepare_resume(args, num_devices: int = 1):
     run = rundir.read_record(out, "cannot resume")
     resolved = run.config(f"{cfg_path} train_config")
 
+    starts_from_skill = methods.get(resolved.method).starts_from_skill
     given = {"task": (args.task, run.task), "physics": (args.physics, run.physics),
              "skills": (args.skills, run.skill_set), "skill_source": (args.skill_source, run.skill_source),
              "skill_dir": (os.path.abspath(args.skill_dir) if args.skill_dir else None, run.skill_dir),
              "seed": (args.seed, run.seed),
              "method": (args.method, resolved.method), "recipe": (args.recipe, resolved.recipe),
-             "finetune_from": (args.finetune_from, run.skills[0] if methods.get(resolved.method).starts_from_skill and run.skills
-                               else None),
+             "finetune_from": (args.finetune_from, run.skills[0] if starts_from_skill and run.skills else None),
              "num_envs": (args.num_envs, resolved.num_envs), "episode_length": (args.episode_length, run.episode_length),
              "eval_every": (args.eval_every, resolved.eval_every),
              "eval_episodes": (args.eval_episodes, resolved.eval_episodes),
@@ -528,10 +528,12 @@ def skill_sources(skills, physics: str) -> list[dict]:
     return out
 
 
-def _restore(out, ckpt, csv_path, env, skills, resolved, seed: int, step=None, mesh=None, primary: bool = True):
-    """The checkpointed (state, host state) of a resumed run (checkpoint ``step``, default the
-    latest), read only (``_resume_files`` then updates the run directory, on the primary process
-    alone). ``mesh``: the state is restored onto it, each process reading its own shards."""
+def _restore(out, ckpt, csv_path, env, skills, resolved, seed: int, steps=None, mesh=None, primary: bool = True):
+    """The checkpointed (state, host state) of a resumed run: its latest checkpoint of ``steps``
+    (default: all) that restores, an unreadable later one reported in one line on stderr
+    (``Checkpointer.restore_latest``); read only (``_resume_files`` then updates the run directory,
+    on the primary process alone). ``mesh``: the state is restored onto it, each process reading
+    its own shards."""
     from training.checkpointing import CheckpointError, abstract_training_state
 
     abstract, fresh_replay = abstract_training_state(env, skills, resolved, seed)
@@ -541,18 +543,29 @@ def _restore(out, ckpt, csv_path, env, skills, resolved, seed: int, step=None, m
 
         shardings = state_shardings(abstract, mesh, resolved.num_envs)
     try:
-        state, host = ckpt.restore(abstract, fresh_replay, step=step, shardings=shardings)
+        state, host = ckpt.restore_latest(abstract, fresh_replay, steps=steps, shardings=shardings,
+                                          on_skip=_report_skipped if primary else None)
     except CheckpointError as e:
         raise UsageError(f"cannot resume: {e}") from None
+    return state, _checked_host(ckpt, csv_path, host, primary)
+
+
+def _checked_host(ckpt, csv_path, host, primary: bool = True) -> dict:
+    """``host`` of a restored checkpoint, once it is known to be training.run's and (primary
+    process) its metrics.csv to hold the rows it covers; UsageError otherwise."""
     if not all(k in host for k in ("csv_bytes", "csv_rows", "env_steps")):
         raise UsageError(f"cannot resume: the checkpoint in {ckpt.directory} was not written by training.run")
     if not primary:
-        return state, host
+        return host
     size = os.path.getsize(csv_path) if os.path.isfile(csv_path) else -1
     if size < int(host["csv_bytes"]):
         raise UsageError(f"cannot resume: {csv_path} is {'missing' if size < 0 else f'{size} bytes'}, "
                          f"the checkpoint covers its first {host['csv_bytes']} bytes")
-    return state, host
+    return host
+
+
+def _report_skipped(step: int, why: str):
+    print(f"warning: {why}; resuming from the checkpoint before it", file=sys.stderr, flush=True)
 
 
 def _resume_files(out, csv_path, host, run=None, extend_command=None):
@@ -562,6 +575,7 @@ def _resume_files(out, csv_path, host, run=None, extend_command=None):
     remove a half-written export."""
     if extend_command is not None:
         rundir.extend(out, run, extend_command)
+    set_aside = _set_aside_later_checkpoints(out, int(host["iteration"]))
     with open(csv_path, "r+b") as f:  # drop the rows written after the checkpoint
         f.truncate(int(host["csv_bytes"]))
     stale = os.path.join(out, "export.npz")  # an export killed before its export.json: redone at the end
@@ -570,7 +584,34 @@ def _resume_files(out, csv_path, host, run=None, extend_command=None):
     print(f"resuming {out} from its checkpoint at iteration {host['iteration']} "
           f"({host['env_steps']:,} env steps, {host['csv_rows']} metrics rows)"
           + ("" if host.get("replay_saved", True) else "; the checkpoint holds no replay: "
-             "the buffer starts empty"))
+             "the buffer starts empty")
+          + (f"; the later checkpoints that do not restore moved to {os.path.dirname(set_aside[0])}" if set_aside
+             else ""))
+
+
+UNRESTORABLE_DIR = "unrestorable_checkpoints"  # OUT/<this>/<iteration>: checkpoints a resume skipped
+
+
+def _set_aside_later_checkpoints(out, iteration: int) -> list:
+    """Move the checkpoints after ``iteration`` (those a resume found unreadable and skipped, or a
+    --seeds run's beyond the group's common one) out of OUT/checkpoints into OUT/unrestorable_checkpoints
+    (kept, not deleted): the resumed run writes those iterations again, and orbax saves no iteration
+    at or below its latest. Returns their new paths."""
+    from training.checkpointing import CHECKPOINT_SUBDIR
+
+    src = os.path.join(out, CHECKPOINT_SUBDIR)
+    names = os.listdir(src) if os.path.isdir(src) else []
+    later = sorted(int(n) for n in names if n.isdigit() and int(n) > iteration)
+    moved = []
+    for step in later:
+        dest = os.path.join(out, UNRESTORABLE_DIR, str(step))
+        n = 1
+        while os.path.exists(dest):
+            dest, n = os.path.join(out, UNRESTORABLE_DIR, f"{step}.{n}"), n + 1
+        os.makedirs(os.path.dirname(dest), exist_ok=True)
+        os.rename(os.path.join(src, str(step)), dest)
+        moved.append(dest)
+    return moved
 
 
 class _RunFiles:
@@ -702,14 +743,45 @@ def params_digest(params) -> str:
     return h.hexdigest()[:16]
 
 
-def _common_step(ckpts, outs) -> int:
-    """The latest checkpoint iteration all runs of a ``--seeds`` group have (they save together; a
-    process killed between two of their saves leaves the last one behind in some)."""
+def _common_steps(ckpts, outs) -> list:
+    """The checkpoint iterations all runs of a ``--seeds`` group have, latest first (they save
+    together; a process killed between two of their saves leaves the last one behind in some)."""
     common = set.intersection(*(set(c.steps()) for c in ckpts))
     if not common:
         raise UsageError(f"cannot resume: the runs of {os.path.dirname(outs[0])} share no checkpoint iteration "
                          "(resume them one by one: --resume --out DIR/sSEED)")
-    return max(common)
+    return sorted(common, reverse=True)
+
+
+def _restore_group(outs, ckpts, runs, env, skills, resolved, mesh=None):
+    """The (state, host) of every run of a ``--seeds`` group at their latest common checkpoint that
+    restores in all of them (an unreadable one in any run: the one before, reported on stderr)."""
+    from training.checkpointing import CheckpointError, CheckpointUnreadable, abstract_training_state
+
+    steps = _common_steps(ckpts, outs)
+    reasons = []
+    for step in steps:
+        try:
+            restored = []
+            for out, c, r in zip(outs, ckpts, runs):
+                abstract, fresh_replay = abstract_training_state(env, skills, resolved, int(r.seed))
+                shardings = None
+                if mesh is not None:
+                    from parallel_skills.sharding import state_shardings
+
+                    shardings = state_shardings(abstract, mesh, resolved.num_envs)
+                state, host = c.restore(abstract, fresh_replay, step=step, shardings=shardings)
+                restored.append((state, _checked_host(c, os.path.join(out, "metrics.csv"), host)))
+        except CheckpointUnreadable as e:
+            reasons.append((step, str(e)))
+            continue
+        except CheckpointError as e:
+            raise UsageError(f"cannot resume: {e}") from None
+        for s, why in reasons:
+            _report_skipped(s, why)
+        return restored
+    raise UsageError("cannot resume: no common checkpoint of the group restores: "
+                     + "; ".join(why for _, why in reasons))
 
 
 def _train_seeds(outs, runs, resolved, env, resume: bool, video: bool = False, mesh=None, extend_command=None):
@@ -724,10 +796,7 @@ def _train_seeds(outs, runs, resolved, env, resume: bool, video: bool = False, m
     initial_states = host_states = None
     if resume:
         ckpts = [Checkpointer(out, save_replay=r.replay_checkpoint) for out, r in zip(outs, runs)]
-        step = main_guard(lambda: _common_step(ckpts, outs))
-        restored = [main_guard(lambda o=out, c=c, r=r: _restore(o, c, os.path.join(o, "metrics.csv"), env, skills,
-                                                                 resolved, int(r.seed), step=step, mesh=mesh))
-                    for out, c, r in zip(outs, ckpts, runs)]
+        restored = main_guard(lambda: _restore_group(outs, ckpts, runs, env, skills, resolved, mesh))
         for out, r, (_, host) in zip(outs, runs, restored):  # (all restored: only now is anything written)
             _resume_files(out, os.path.join(out, "metrics.csv"), host, r, extend_command)
         initial_states, host_states = [x[0] for x in restored], [x[1] for x in restored]
