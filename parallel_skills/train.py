@@ -31,7 +31,7 @@ from parallel_skills.config import TrainConfig, resolve, updates_per_iteration
 from parallel_skills.evaluation import rollout_episodes
 from parallel_skills.replay import PendingStep, Replay, Transition
 from parallel_skills.rhpo import rhpo_learner_update
-from parallel_skills.skills import Skill, SkillSet
+from parallel_skills.skills import GaussianSkillParams, Skill, SkillSet
 
 log = logging.getLogger("parallel_skills")
 
@@ -52,6 +52,25 @@ class TrainingState:
     # unroll once their n-step returns are known (``Replay.insert``). None for 1-step runs (their
     # checkpoints keep their structure).
     pending: Optional[PendingStep] = None
+
+
+@struct.dataclass
+class TrainedParams:
+    """What ``train`` returns of a run's networks: the new skill's and the scheduler's policy
+    variables (flax) and the observation statistics both normalise with."""
+
+    new_skill: Any
+    scheduler: Any
+    normalizer: obs_norm.RunningStats
+
+    @classmethod
+    def of(cls, state: "TrainingState") -> "TrainedParams":
+        return cls(new_skill=state.new_skill.policy_params, scheduler=state.scheduler.policy_params,
+                   normalizer=state.normalizer)
+
+    def new_skill_params(self) -> GaussianSkillParams:
+        """The new skill as a Gaussian-MLP skill's parameters (``Skill.gaussian_mlp``)."""
+        return GaussianSkillParams.from_normalizer(self.new_skill, self.normalizer)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -264,7 +283,7 @@ def finetune_source(skills: Sequence[Skill], config: TrainConfig) -> Skill:
         raise ValueError(f"method finetune starts from exactly one skill, got {len(skills)}")
     s = skills[0]
     hidden = s.metadata.get("hidden")
-    if s.params is None or hidden is None or "policy" not in s.params:
+    if not isinstance(s.params, GaussianSkillParams) or hidden is None:
         raise ValueError(f"method finetune needs a network skill (e.g. from the library), {s.name!r} has no "
                          "network parameters (scripted skills are code)")
     if tuple(int(h) for h in hidden) != tuple(config.new_skill.hidden):
@@ -277,9 +296,9 @@ def start_from_skill(new_skill: learners.LearnerState, skill: Skill):
     """The new skill's learner state with ``skill``'s policy as online and target policy, and the
     skill's observation statistics as the normaliser (the critic starts fresh). Returns
     (learner state, normaliser)."""
-    policy = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), skill.params["policy"])
-    mean = jnp.asarray(skill.params["obs_mean"], jnp.float32)
-    std = jnp.asarray(skill.params["obs_std"], jnp.float32)
+    policy = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), skill.params.policy)
+    mean = jnp.asarray(skill.params.obs_mean, jnp.float32)
+    std = jnp.asarray(skill.params.obs_std, jnp.float32)
     # count 1 and m2 = std²: normalize() reproduces (obs − mean) / std exactly (std ≥ STD_FLOOR).
     normalizer = obs_norm.RunningStats(count=jnp.ones(()), mean=mean, m2=jnp.square(std))
     return new_skill.replace(policy_params=policy, target_policy_params=policy), normalizer
@@ -297,10 +316,10 @@ def make_policy_factory(action_size: int, config: TrainConfig, num_skills_total:
     sched_apply = learners.make_scheduler_apply(num_skills_total, config.scheduler)
     lengths = jnp.asarray(config.scheduler.skill_lengths, jnp.int32)
 
-    def make_policy(params, which: str = "new_skill", deterministic: bool = True):
-        stats = params["normalizer"]
+    def make_policy(params: TrainedParams, which: str = "new_skill", deterministic: bool = True):
+        stats = params.normalizer
         if which == "new_skill":
-            p = params["new_skill"]
+            p = params.new_skill
 
             def policy(obs, key):
                 mean, std = new_apply(p, obs_norm.normalize(stats, obs))
@@ -308,7 +327,7 @@ def make_policy_factory(action_size: int, config: TrainConfig, num_skills_total:
 
             return policy
         if which == "scheduler":
-            p = params["scheduler"]
+            p = params.scheduler
 
             def policy(obs, key):
                 li, lk = sched_apply(p, obs_norm.normalize(stats, obs))
@@ -435,8 +454,8 @@ def train(
 ):
     """Train SkillS on ``environment`` (Brax env API) with frozen ``skills``.
 
-    Returns ``(make_policy, params, metrics)``: ``params`` = {"new_skill", "scheduler"} policy
-    parameters, ``metrics`` the last evaluation and training metrics (Python floats / lists).
+    Returns ``(make_policy, params, metrics)``: ``params`` a ``TrainedParams`` (the new skill's
+    and the scheduler's policy parameters and the observation statistics), ``metrics`` the last evaluation and training metrics (Python floats / lists).
     ``progress_fn(env_steps, metrics)`` is called after every evaluation (Brax style);
     ``step_fn(env_steps)`` after every iteration (a progress bar's count; a host int, no device sync).
     ``auto_config``: fill the device's defaults with ``resolve(config)``; False: train with ``config``
@@ -462,15 +481,14 @@ def train(
     episode_length = int(episode_length or getattr(environment, "episode_length", 1000))
     mesh = mesh if mesh is not None and mesh.size > 1 else None
     trainer = make_trainer(environment, skills, config, mesh)
-    init, iteration, place = _compiled(trainer, mesh, seed_axis=False)
+    init, iteration, place = compile_trainer(trainer, mesh, seed_axis=False)
     state = init(jax.random.PRNGKey(seed)) if initial_state is None else place(initial_state)
     state, (metrics,) = _host_loop(
         trainer, iteration, state, None,
         [make_evaluation(eval_env or environment, trainer, episode_length, seed, mesh)],
         num_timesteps, [host_state], [progress_fn], [checkpoint_fn], checkpoint_every, checkpoint_min_seconds,
         step_fn)
-    params = {"new_skill": state.new_skill.policy_params, "scheduler": state.scheduler.policy_params,
-              "normalizer": state.normalizer}
+    params = TrainedParams.of(state)
     make_policy = make_policy_factory(int(environment.action_size), config, trainer.num_skills_total)
     return make_policy, params, metrics
 
@@ -518,7 +536,7 @@ def train_seeds(
     episode_length = int(episode_length or getattr(environment, "episode_length", 1000))
     mesh = mesh if mesh is not None and mesh.size > 1 else None
     trainer = make_trainer(environment, skills, config, mesh)
-    init, iteration, place = _compiled(trainer, mesh, seed_axis=True)
+    init, iteration, place = compile_trainer(trainer, mesh, seed_axis=True)
     if initial_states is None:
         state = init(jnp.stack([jax.random.PRNGKey(s) for s in seeds]))
     else:
@@ -530,13 +548,12 @@ def train_seeds(
     evaluates = [make_evaluation(eval_env or environment, trainer, episode_length, s, mesh) for s in seeds]
     state, metrics = _host_loop(trainer, iteration, state, n, evaluates, num_timesteps, host_states, progress_fns,
                                 checkpoint_fns, checkpoint_every, checkpoint_min_seconds, step_fn)
-    params = [{"new_skill": st.new_skill.policy_params, "scheduler": st.scheduler.policy_params,
-               "normalizer": st.normalizer} for st in (_seed_slice(state, i) for i in range(n))]
+    params = [TrainedParams.of(_seed_slice(state, i)) for i in range(n)]
     make_policy = make_policy_factory(int(environment.action_size), config, trainer.num_skills_total)
     return make_policy, params, metrics
 
 
-def _compiled(trainer: Trainer, mesh, seed_axis: bool):
+def compile_trainer(trainer: Trainer, mesh, seed_axis: bool):
     """``(init(key), iteration(state), place(state))`` jitted for one device (``mesh`` None) or data
     parallel over ``mesh`` (``sharding.state_shardings`` in and out; ``place`` puts a restored state
     on the mesh). ``seed_axis``: ``train_seeds``' functions, vmapped over a leading seed axis."""

@@ -108,8 +108,8 @@ def test_finetune_starts_from_the_library_skill_and_keeps_its_statistics():
     trainer, state, history = _run(cfg, [skill])
     assert trainer.skills == () and trainer.scheduler_updates == 0 and _finite(history[-1])
     # The observation statistics are the skill's, unchanged by 3 iterations of data.
-    np.testing.assert_allclose(state.normalizer.mean, skill.params["obs_mean"], rtol=1e-6)
-    np.testing.assert_allclose(obs_norm.std(state.normalizer), skill.params["obs_std"], rtol=1e-6)
+    np.testing.assert_allclose(state.normalizer.mean, skill.params.obs_mean, rtol=1e-6)
+    np.testing.assert_allclose(obs_norm.std(state.normalizer), skill.params.obs_std, rtol=1e-6)
     # At the start the new skill is the skill: same mean action on the same observations.
     init = jax.jit(trainer.init)(jax.random.PRNGKey(0))
     obs = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(3), 5)).obs

@@ -330,9 +330,9 @@ def test_qpos_from_observations_matches_the_scene_layout():
 
 @pytest.mark.parametrize("fmt", ["gif", "mp4"])
 def test_video_writes_a_file(tmp_path, fmt):
-    from training.video import VideoError, _ffmpeg_available, qpos_from_observations, write_video
+    from training.video import VideoError, ffmpeg_available, qpos_from_observations, write_video
 
-    if fmt == "mp4" and not _ffmpeg_available():
+    if fmt == "mp4" and not ffmpeg_available():
         pytest.skip("mp4 needs imageio + imageio-ffmpeg (the [video] extra); GIF is the fallback")
     qpos = qpos_from_observations(np.repeat(_kinematic_observations(), 2, axis=0))
     try:

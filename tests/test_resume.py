@@ -65,7 +65,7 @@ def _final_state(run):
     import orbax.checkpoint as ocp
 
     step = ck.latest_step()
-    r = ck._mgr().restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(),
+    r = ck.manager().restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(),
                                                         replay=ocp.args.StandardRestore(),
                                                         host=ocp.args.JsonRestore()))
     host = dict(r.host)

@@ -153,7 +153,8 @@ class Checkpointer:
         self.max_to_keep = int(max_to_keep)
         self._manager = None
 
-    def _mgr(self):
+    def manager(self):
+        """The orbax ``CheckpointManager`` of the directory (created on first use)."""
         if self._manager is None:
             import orbax.checkpoint as ocp
 
@@ -166,7 +167,7 @@ class Checkpointer:
         """Iterations of the complete checkpoints on disk, ascending (unfinished saves excluded)."""
         if not os.path.isdir(self.directory):
             return []
-        return sorted(int(s) for s in self._mgr().all_steps())
+        return sorted(int(s) for s in self.manager().all_steps())
 
     def latest_step(self) -> Optional[int]:
         steps = self.steps()
@@ -180,7 +181,7 @@ class Checkpointer:
         items = {"state": ocp.args.StandardSave(_state_tree(state)), "host": ocp.args.JsonSave(host)}
         if self.save_replay:
             items["replay"] = ocp.args.StandardSave(state.replay)
-        mgr = self._mgr()
+        mgr = self.manager()
         mgr.save(int(host["iteration"]), args=ocp.args.Composite(**items))
         mgr.wait_until_finished()
 
@@ -206,7 +207,7 @@ class Checkpointer:
         step = self.latest_step() if step is None else int(step)
         if step is None:
             raise CheckpointError(f"no checkpoint in {self.directory}")
-        mgr = self._mgr()
+        mgr = self.manager()
         where = os.path.join(self.directory, str(step))
         try:
             host = mgr.restore(step, args=ocp.args.Composite(host=ocp.args.JsonRestore())).host

@@ -823,14 +823,11 @@ def _train_seeds(outs, runs, resolved, env, resume: bool, video: bool = False, m
 def _write_outputs(out, run, resolved, env, skills, make_policy, params, metrics, video: bool, seconds: float):
     """The finished run's new skill (``new_skill.npz``), plots, video and ``export.npz``."""
     from parallel_skills import Skill
-    from parallel_skills.normalization import std as norm_std
     from training.export import write_export
 
     names, seed, num_timesteps = list(run.skills), int(run.seed), int(run.num_timesteps)
-    stats = params["normalizer"]
-    skill = Skill.gaussian_mlp(
-        f"{run.task}_new_skill", {"policy": params["new_skill"], "obs_mean": stats.mean, "obs_std": norm_std(stats)},
-        env.action_size, resolved.new_skill.hidden)
+    skill = Skill.gaussian_mlp(f"{run.task}_new_skill", params.new_skill_params(), env.action_size,
+                               resolved.new_skill.hidden)
     skill.save(os.path.join(out, "new_skill.npz"), obs_size=int(env.observation_size), task=run.task,
                physics=run.physics, seed=seed, command=run.command,
                success=metrics["eval/new_skill_success"], trained_with=names, env_steps=metrics["env_steps"])
