@@ -477,20 +477,14 @@ def train(
     run computes, up to float summation order. ``num_envs`` and both learner batch sizes must
     divide by the device count. Every process calls ``train`` alike; the callbacks run in each.
     """
-    config = _checked_config(environment, skills, config, num_timesteps, num_envs, checkpoint_every, auto_config)
-    episode_length = int(episode_length or getattr(environment, "episode_length", 1000))
-    mesh = mesh if mesh is not None and mesh.size > 1 else None
-    trainer = make_trainer(environment, skills, config, mesh)
-    init, iteration, place = compile_trainer(trainer, mesh, seed_axis=False)
-    state = init(jax.random.PRNGKey(seed)) if initial_state is None else place(initial_state)
-    state, (metrics,) = _host_loop(
-        trainer, iteration, state, None,
-        [make_evaluation(eval_env or environment, trainer, episode_length, seed, mesh)],
-        num_timesteps, [host_state], [progress_fn], [checkpoint_fn], checkpoint_every, checkpoint_min_seconds,
-        step_fn)
-    params = TrainedParams.of(state)
-    make_policy = make_policy_factory(int(environment.action_size), config, trainer.num_skills_total)
-    return make_policy, params, metrics
+    make_policy, params, metrics = train_seeds(
+        environment, skills, seeds=[seed], num_timesteps=num_timesteps, num_envs=num_envs,
+        episode_length=episode_length, config=config, eval_env=eval_env, progress_fns=[progress_fn],
+        initial_states=None if initial_state is None else [initial_state], host_states=[host_state],
+        checkpoint_fns=[checkpoint_fn], checkpoint_every=checkpoint_every,
+        checkpoint_min_seconds=checkpoint_min_seconds, step_fn=step_fn, auto_config=auto_config, mesh=mesh,
+        seed_axis=False)
+    return make_policy, params[0], metrics[0]
 
 
 def train_seeds(
@@ -512,6 +506,7 @@ def train_seeds(
     step_fn: Optional[Callable[[int], None]] = None,
     auto_config: bool = True,
     mesh=None,
+    seed_axis: bool = True,
 ):
     """``train`` for several seeds at once: one compiled iteration ``vmap``-ed over the seed axis
     (S = len(seeds) runs in lockstep: on an accelerator S times the envs for about the cost of one
@@ -521,6 +516,9 @@ def train_seeds(
     ``train``'s keys, so seed s evaluates the same episodes as a single run of s; the learning
     itself matches a single run up to float reordering in the batched matrix products
     (tests/test_train.py states the tolerance).
+
+    ``seed_axis`` False: one seed, its state unbatched (no vmap): what ``train`` runs, through this
+    same code path.
 
     Returns ``(make_policy, [params per seed], [metrics per seed])``.
     """
@@ -532,23 +530,27 @@ def train_seeds(
     progress_fns, host_states, checkpoint_fns = per_seed(progress_fns), per_seed(host_states), per_seed(checkpoint_fns)
     if any(len(x) != n for x in (progress_fns, host_states, checkpoint_fns)):
         raise ValueError(f"progress_fns, host_states and checkpoint_fns need one entry per seed ({n})")
+    if not seed_axis and n != 1:
+        raise ValueError(f"seed_axis=False trains one seed, got {n}")
     config = _checked_config(environment, skills, config, num_timesteps, num_envs, checkpoint_every, auto_config)
     episode_length = int(episode_length or getattr(environment, "episode_length", 1000))
     mesh = mesh if mesh is not None and mesh.size > 1 else None
     trainer = make_trainer(environment, skills, config, mesh)
-    init, iteration, place = compile_trainer(trainer, mesh, seed_axis=True)
+    init, iteration, place = compile_trainer(trainer, mesh, seed_axis=seed_axis)
     if initial_states is None:
-        state = init(jnp.stack([jax.random.PRNGKey(s) for s in seeds]))
+        keys = [jax.random.PRNGKey(s) for s in seeds]
+        state = init(jnp.stack(keys) if seed_axis else keys[0])
     else:
         if len(initial_states) != n:
             raise ValueError(f"initial_states needs one state per seed ({n}), got {len(initial_states)}")
-        if len({int(s.iteration) for s in initial_states}) != 1:
+        if seed_axis and len({int(s.iteration) for s in initial_states}) != 1:
             raise ValueError("initial_states must all be at the same iteration (checkpoints of one vmapped run)")
-        state = place(jax.tree.map(lambda *xs: jnp.stack(xs), *initial_states))
+        state = place(jax.tree.map(lambda *xs: jnp.stack(xs), *initial_states) if seed_axis else initial_states[0])
     evaluates = [make_evaluation(eval_env or environment, trainer, episode_length, s, mesh) for s in seeds]
-    state, metrics = _host_loop(trainer, iteration, state, n, evaluates, num_timesteps, host_states, progress_fns,
-                                checkpoint_fns, checkpoint_every, checkpoint_min_seconds, step_fn)
-    params = [TrainedParams.of(_seed_slice(state, i)) for i in range(n)]
+    state, metrics = _host_loop(trainer, iteration, state, n if seed_axis else None, evaluates, num_timesteps,
+                                host_states, progress_fns, checkpoint_fns, checkpoint_every, checkpoint_min_seconds,
+                                step_fn)
+    params = [TrainedParams.of(_seed_slice(state, i if seed_axis else None)) for i in range(n)]
     make_policy = make_policy_factory(int(environment.action_size), config, trainer.num_skills_total)
     return make_policy, params, metrics
 

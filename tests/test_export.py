@@ -201,7 +201,7 @@ def test_evaluate_scheduler_runs_library_and_skill_dir_skills(tmp_path, capsys):
     import shutil
 
     from training import skill_library
-    from training.run import skill_sources
+    from training.run_files import skill_sources
 
     own = tmp_path / "skills"
     own.mkdir()
