@@ -99,7 +99,8 @@ class Skill:
         """A skill from new-skill (Gaussian MLP) parameters; acts with the mean action.
 
         ``params``: ``GaussianSkillParams`` (or a {"policy", "obs_mean", "obs_std"} mapping):
-        observations are normalised with the training run's statistics before the network."""
+        observations are normalised with the training run's statistics before the network.
+        ``None``: the architecture alone, whose ``apply`` takes the params at call time."""
         from parallel_skills import networks
 
         net = networks.GaussianPolicy(action_size=action_size, hidden=tuple(hidden))
@@ -110,7 +111,8 @@ class Skill:
             return mean
 
         meta = dict(metadata, action_size=int(action_size), hidden=[int(h) for h in hidden])
-        return Skill(name=name, apply=apply, params=GaussianSkillParams.of(params), arch=f"gaussian_mlp{tuple(hidden)}->{action_size}",
+        params = None if params is None else GaussianSkillParams.of(params)
+        return Skill(name=name, apply=apply, params=params, arch=f"gaussian_mlp{tuple(hidden)}->{action_size}",
                      metadata=meta)
 
     def save(self, path: str, **metadata) -> None:
