@@ -17,7 +17,7 @@ import dataclasses
 import logging
 import math
 import time
-from typing import Any, Callable, Optional, Sequence
+from typing import Any, Callable, NamedTuple, Optional, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -344,20 +344,39 @@ def make_policy_factory(action_size: int, config: TrainConfig, num_skills_total:
     return make_policy
 
 
-def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: int, mesh=None):
+class Evaluators(NamedTuple):
+    """The jitted whole-episode evaluations of ``make_evaluators``; each returns a dict of
+    per-episode arrays [num_episodes] (``return``, ``success``, ...)."""
+
+    new_skill: Callable  # (new_params, normalizer, key): the new skill alone, mean actions
+    new_skill_sampled: Callable  # (new_params, normalizer, key): the same, actions sampled from π_N
+    scheduler: Callable  # (sched_params, new_params, normalizer, key): greedy decisions
+    scheduler_sampled: Callable  # (sched_params, critic_params, new_params, normalizer, key)
+
+
+def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: int, mesh=None) -> Evaluators:
     """Jitted whole-episode evaluations of the new skill alone and of the scheduler alone
-    (paper App. C.3): ``eval_new(new_params, normalizer, key)``,
-    ``eval_scheduler(sched_params, new_params, normalizer, key)`` -> dict of per-episode ``return`` /
-    ``success`` [num_episodes]. The scheduler acts greedily (argmax z) with its counters, through
-    the run's acting step (``Actor.step``) on ``num_episodes`` envs. The third,
-    ``eval_scheduler_sampled(sched_params, critic_params, new_params, normalizer, key)``, runs it as it
-    collects (sampled, with the collection noise) and adds ``discounted_return`` and its critic's
-    ``value_at_reset`` per episode."""
+    (paper App. C.3): ``new_skill(new_params, normalizer, key)`` acts with the new skill's mean
+    action (the deterministic policy ``training.evaluate`` and the export run);
+    ``new_skill_sampled`` with actions sampled from its Gaussian, as it acts when the scheduler
+    picks it during collection; ``scheduler(sched_params, new_params, normalizer, key)`` acts
+    greedily (argmax z) with its counters, through the run's acting step (``Actor.step``) on
+    ``num_episodes`` envs; ``scheduler_sampled(sched_params, critic_params, new_params, normalizer,
+    key)`` runs it as it collects (sampled, with the collection noise) and adds
+    ``discounted_return`` and its critic's ``value_at_reset`` per episode. Each returns a dict of
+    per-episode ``return`` / ``success`` [num_episodes]."""
     new_apply = learners.make_new_skill_apply(int(env.action_size), trainer.config.new_skill)
     actor = make_actor(env, trainer.skills, trainer.config, num_episodes)
 
     def eval_new(new_params, normalizer, key):
         policy = lambda obs, k: new_apply(new_params, obs_norm.normalize(normalizer, obs))[0]  # noqa: E731
+        return rollout_episodes(env, policy, key, num_episodes, episode_length)
+
+    def eval_new_sampled(new_params, normalizer, key):
+        def policy(obs, k):
+            mean, std = new_apply(new_params, obs_norm.normalize(normalizer, obs))
+            return networks.sample_action(mean, std, k)
+
         return rollout_episodes(env, policy, key, num_episodes, episode_length)
 
     def eval_scheduler(sched_params, new_params, normalizer, key):
@@ -394,7 +413,8 @@ def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: in
                                                       jax.random.split(k1, episode_length))
         return {"return": ret, "success": succ, "discounted_return": disc_ret, "value_at_reset": value}
 
-    return jax.jit(eval_new), jax.jit(eval_scheduler), jax.jit(eval_scheduler_sampled)
+    return Evaluators(new_skill=jax.jit(eval_new), new_skill_sampled=jax.jit(eval_new_sampled),
+                      scheduler=jax.jit(eval_scheduler), scheduler_sampled=jax.jit(eval_scheduler_sampled))
 
 
 def _checked_config(environment, skills, config: TrainConfig, num_timesteps, num_envs, checkpoint_every,
@@ -641,8 +661,7 @@ def make_evaluation(env, trainer: Trainer, episode_length: int, seed: int,
     from (seed, iteration), not from the loop's history: a resumed run draws the same evaluation
     episodes as an uninterrupted one. ``mesh``: the evaluations run replicated on its devices (every
     process of a multi-process run evaluates the same episodes)."""
-    eval_new, eval_sched, eval_sampled = make_evaluators(env, trainer, trainer.config.eval_episodes, episode_length,
-                                                         mesh)
+    evals = make_evaluators(env, trainer, trainer.config.eval_episodes, episode_length, mesh)
     base_key = jax.random.PRNGKey(seed + 10_000)
     method = methods.get(trainer.config.method)
     place = (lambda k: k) if mesh is None else (lambda k: sharding.put(k, sharding.replicated(mesh)))  # noqa: E731
@@ -651,16 +670,20 @@ def make_evaluation(env, trainer: Trainer, episode_length: int, seed: int,
         k1, k2 = map(place, jax.random.split(jax.random.fold_in(base_key, iteration)))
         # (A key of its own: the greedy evaluations draw what they drew before it existed.)
         k3 = place(jax.random.fold_in(jax.random.fold_in(base_key, iteration), 1))
-        ev = eval_new(state.new_skill.policy_params, state.normalizer, k1)
+        k4 = place(jax.random.fold_in(jax.random.fold_in(base_key, iteration), 2))
+        ev = evals.new_skill(state.new_skill.policy_params, state.normalizer, k1)
         # (device_get first: a multi-process run's arrays are global, this process reads its replica.)
         mean = lambda x: float(jnp.mean(jax.device_get(x)))  # noqa: E731
         out = {"eval/new_skill_success": mean(ev["success"]), "eval/new_skill_return": mean(ev["return"])}
+        ev = evals.new_skill_sampled(state.new_skill.policy_params, state.normalizer, k4)
+        out["eval/new_skill_sampled_success"] = mean(ev["success"])
+        out["eval/new_skill_sampled_return"] = mean(ev["return"])
         if method.scheduler_acts:  # the scheduler acting (rhpo: the whole mixture)
-            ev = eval_sched(state.scheduler.policy_params, state.new_skill.policy_params, state.normalizer, k2)
+            ev = evals.scheduler(state.scheduler.policy_params, state.new_skill.policy_params, state.normalizer, k2)
             out["eval/scheduler_success"] = mean(ev["success"])
             out["eval/scheduler_return"] = mean(ev["return"])
         if method.learns_scheduler:  # the scheduler as it collects; its critic at the reset states
-            ev = eval_sampled(state.scheduler.policy_params, state.scheduler.critic_params,
+            ev = evals.scheduler_sampled(state.scheduler.policy_params, state.scheduler.critic_params,
                               state.new_skill.policy_params, state.normalizer, k3)
             out["eval/scheduler_sampled_success"] = mean(ev["success"])
             out["eval/scheduler_sampled_return"] = mean(ev["return"])

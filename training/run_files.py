@@ -26,7 +26,9 @@ CSV_FIELDS = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skil
               # Scheduler diagnostics (docs/scheduler.md): as it collects, its decisions, its replay.
               "eval/scheduler_sampled_success", "eval/scheduler_sampled_return", "eval/scheduler_discounted_return",
               "eval/scheduler_value_at_reset", "decision_entropy_i", "decision_entropy_k", "skill_share",
-              "length_share", "replay_rewarded_fraction", "scheduler/policy_entropy_k"]
+              "length_share", "replay_rewarded_fraction", "scheduler/policy_entropy_k",
+              # The new skill alone with actions sampled from its Gaussian (as it collects).
+              "eval/new_skill_sampled_success", "eval/new_skill_sampled_return"]
 
 
 # Without --checkpoint_every: checkpoint at evaluations, but at most once a minute (a lift run on a
