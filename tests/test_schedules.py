@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from training.cli import UsageError, main_guard
@@ -129,3 +130,35 @@ def test_a_trained_new_skill_runs_as_step_new(tmp_path, capsys):
     _fails(["--task", "lift", "--new_skill", str(tmp_path), "lift_green"], capsys, "no schedule runs it")
     _fails(["--task", "lift", "--new_skill", str(tmp_path / "nope.npz"), "new"], capsys, "--new_skill")
     _fails(["--task", "lift", "--probes", "wave_hello", "lift_green"], capsys, "no success test of its own")
+
+
+def test_new_skill_sampled_actions_draw_from_its_gaussian(tmp_path):
+    """``--new_skill_actions sampled``: the new skill acts with clip(mean + std·ε), its std floor
+    the run's ``new_skill.min_std`` (config.json beside the file, else the default); ``mean``
+    ignores the key."""
+    import jax
+    import jax.numpy as jnp
+
+    import tasks
+    from parallel_skills import networks
+    from parallel_skills.config import NewSkillConfig
+    from parallel_skills.skills import Skill
+
+    env = tasks.make("lift")
+    net = networks.GaussianPolicy(action_size=env.action_size, hidden=(8,), min_std=0.2)
+    params = {"policy": net.init(jax.random.PRNGKey(0), jnp.zeros((1, env.observation_size))),
+              "obs_mean": jnp.zeros((env.observation_size,)), "obs_std": jnp.ones((env.observation_size,))}
+    Skill.gaussian_mlp("lift_new_skill", params, env.action_size, (8,)).save(str(tmp_path / "new_skill.npz"))
+    assert S.run_min_std(str(tmp_path)) == NewSkillConfig.min_std  # no config.json: the default
+    (tmp_path / "config.json").write_text(json.dumps({"train_config": {"new_skill": {"min_std": 0.2}}}))
+    assert S.run_min_std(str(tmp_path)) == 0.2
+    obs = jax.random.normal(jax.random.PRNGKey(1), (env.observation_size,))
+    k1, k2 = jax.random.PRNGKey(2), jax.random.PRNGKey(3)
+    mean_skill = S.load_new_skill(str(tmp_path), env, "mean")
+    sampled = S.load_new_skill(str(tmp_path), env, "sampled")
+    assert np.array_equal(mean_skill.apply(mean_skill.params, obs, k1), mean_skill.apply(mean_skill.params, obs, k2))
+    mean, std = net.apply(params["policy"], jnp.clip(obs, -10.0, 10.0))
+    np.testing.assert_allclose(sampled.apply(sampled.params, obs, k1), networks.sample_action(mean, std, k1), atol=1e-6)
+    assert not np.allclose(sampled.apply(sampled.params, obs, k1), sampled.apply(sampled.params, obs, k2))
+    with pytest.raises(UsageError, match="--new_skill_actions"):
+        S.load_new_skill(str(tmp_path), env, "greedy")

@@ -40,7 +40,8 @@ some step of the episode, as in ``parallel_skills.evaluation``. Every step of an
 in one jitted ``lax.scan`` over the vmapped envs.
 
 ``--new_skill PATH`` adds a trained new skill (a ``training.run`` directory's ``new_skill.npz``, or
-that directory; mean actions, no collection noise) as the step name ``new``: ``new`` alone is the new
+that directory; no collection noise; its mean actions, or with ``--new_skill_actions sampled`` actions
+sampled from its Gaussian as the trainer collects) as the step name ``new``: ``new`` alone is the new
 skill's own evaluation, ``stack_yellow_on_blue:150,new`` asks whether it finishes what a frozen skill
 began. ``--probes NAME,...`` also reports, per schedule, the fraction of episodes in which each named
 success test (a skill's own task, as for ``:until``, or a sparse task) held at some step: where a
@@ -288,21 +289,64 @@ def make_rollout(env, skills, schedule: Schedule, num_envs: int, steps: int, noi
     return rollout
 
 
-def load_new_skill(path, env):
+NEW_SKILL_ACTIONS = ("mean", "sampled")  # --new_skill_actions
+
+
+def load_new_skill(path, env, actions: str = "mean"):
     """``--new_skill`` (a ``training.run`` directory or a ``new_skill.npz``) as a ``Skill`` named
-    ``NEW_SKILL`` acting with its mean action and no collection noise; UsageError (one line) when
+    ``NEW_SKILL`` without collection noise, acting with its mean action (``actions="mean"``, its
+    evaluation) or with actions sampled from its Gaussian (``"sampled"``: clip(mean + std·ε, −1, 1),
+    as the trainer collects with it; the std floor is the run's ``new_skill.min_std`` from the
+    ``config.json`` beside the file, else ``NewSkillConfig.min_std``). UsageError (one line) when
     not given or not a new skill of this task's sizes."""
     from parallel_skills.skills import Skill
 
     if not path:
         raise UsageError(f"a schedule runs {NEW_SKILL!r} but --new_skill is not given (a training.run "
                          f"directory or its new_skill.npz)")
+    if actions not in NEW_SKILL_ACTIONS:
+        raise UsageError(f"--new_skill_actions must be one of {', '.join(NEW_SKILL_ACTIONS)}, got {actions!r}")
     file = os.path.join(path, "new_skill.npz") if os.path.isdir(path) else path
     try:
         skill = Skill.load(file, obs_size=env.observation_size, action_size=env.action_size)
     except ValueError as e:
         raise UsageError(f"--new_skill: {str(e).splitlines()[0]}") from None
-    return dataclasses.replace(skill, name=NEW_SKILL, collection_noise=False)
+    skill = dataclasses.replace(skill, name=NEW_SKILL, collection_noise=False)
+    if actions == "sampled":
+        skill = dataclasses.replace(skill, apply=sampled_apply(skill, run_min_std(os.path.dirname(os.path.abspath(file)))))
+    return skill
+
+
+def run_min_std(run_dir: str) -> float:
+    """The new skill's std floor of the run in ``run_dir`` (its config.json's ``train_config.new_skill.min_std``),
+    or ``NewSkillConfig.min_std`` when the directory holds no readable config.json."""
+    import json
+
+    from parallel_skills.config import NewSkillConfig
+
+    try:
+        with open(os.path.join(run_dir, "config.json")) as f:
+            data = json.load(f)
+        return float(data["train_config"]["new_skill"]["min_std"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return float(NewSkillConfig.min_std)
+
+
+def sampled_apply(skill, min_std: float):
+    """``apply(params, obs [O], key) -> action [A]`` of a Gaussian-MLP ``skill`` sampling its
+    Gaussian (``networks.sample_action``) instead of taking the mean."""
+    from parallel_skills import networks
+    from parallel_skills.normalization import CLIP
+
+    net = networks.GaussianPolicy(action_size=int(skill.metadata["action_size"]),
+                                  hidden=tuple(skill.metadata["hidden"]), min_std=float(min_std))
+
+    def apply(p, obs, key):
+        x = jnp.clip((obs - p["obs_mean"]) / p["obs_std"], -CLIP, CLIP)
+        mean, std = net.apply(p["policy"], x)
+        return networks.sample_action(mean, std, key)
+
+    return apply
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -349,6 +393,8 @@ def main(argv=None):
     p.add_argument("--steps", type=positive_int, default=None, help="episode length (default: the env's)")
     p.add_argument("--new_skill", default=None,
                    help="a trained new skill (a training.run directory or its new_skill.npz), step name 'new'")
+    p.add_argument("--new_skill_actions", default="mean", choices=NEW_SKILL_ACTIONS,
+                   help="the new skill's actions: mean (its evaluation) or sampled (as the trainer collects)")
     p.add_argument("--probes", default="", help="comma-separated success tests to report per schedule "
                    "(skills' own tasks or sparse tasks, as for NAME:until)")
     p.add_argument("--json", default=None, help="write the figures to this file")
@@ -374,7 +420,7 @@ def main(argv=None):
 
     loaded = {}  # ValueError (one line) for an unknown skill or one missing from the library
     if any(NEW_SKILL in names[s.text] for s in schedules):
-        loaded[NEW_SKILL] = load_new_skill(args.new_skill, env)
+        loaded[NEW_SKILL] = load_new_skill(args.new_skill, env, args.new_skill_actions)
     for s in schedules:
         for n in names[s.text]:
             if n not in loaded:
@@ -419,7 +465,9 @@ def main(argv=None):
         os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
         write_json_atomic(args.json, dict(task=args.task, physics=args.physics, skill_source=args.skill_source,
                                           skills=args.skills, episodes=args.episodes, seeds=seeds, noise=args.noise,
-                                          steps=steps, results=results), indent=1)
+                                          steps=steps, new_skill=args.new_skill,
+                                          new_skill_actions=args.new_skill_actions if args.new_skill else None,
+                                          results=results), indent=1)
 
 
 if __name__ == "__main__":
