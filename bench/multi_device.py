@@ -32,7 +32,7 @@ def worker(args) -> dict:
     import tasks
     from parallel_skills import Skill, TrainConfig, sharding
     from parallel_skills.config import resolve
-    from parallel_skills.train import _compiled, make_trainer
+    from parallel_skills.train import compile_trainer, make_trainer
     from tasks.manipulation import scripted
     from training import skill_library
 
@@ -41,7 +41,7 @@ def worker(args) -> dict:
     cfg, _ = resolve(TrainConfig(recipe=args.recipe, num_envs=args.num_envs))
     mesh = sharding.make_mesh() if jax.device_count() > 1 else None
     trainer = make_trainer(env, skills, cfg, mesh)
-    init, iteration, _ = _compiled(trainer, mesh, seed_axis=False)
+    init, iteration, _ = compile_trainer(trainer, mesh, seed_axis=False)
     state = init(jax.random.PRNGKey(0))
     for _ in range(args.fill):  # the replay above both learners' minimum
         state, _ = iteration(state)

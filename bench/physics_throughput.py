@@ -59,9 +59,9 @@ def _worker(backend: str, num_envs: int, steps: int, variant: str, cache_dir: st
         rng = np.random.default_rng(0)
         ctrl = P.action_to_ctrl(rng.uniform(-1, 1, (num_envs, 1, 5)), np)
         out = np.empty((num_envs, stepper.substeps * steps, P.STATE_SIZE))
-        stepper._pool.rollout(stepper.model, stepper.datas, states, ctrl, nstep=stepper.substeps, state=out[:, : stepper.substeps])
+        stepper.pool.rollout(stepper.model, stepper.datas, states, ctrl, nstep=stepper.substeps, state=out[:, : stepper.substeps])
         t0 = time.perf_counter()
-        stepper._pool.rollout(stepper.model, stepper.datas, states, ctrl, nstep=stepper.substeps * steps, state=out)
+        stepper.pool.rollout(stepper.model, stepper.datas, states, ctrl, nstep=stepper.substeps * steps, state=out)
         run = time.perf_counter() - t0
         return {"steps_per_s": num_envs * steps / run, "run_s": run}
 

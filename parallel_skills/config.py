@@ -17,6 +17,8 @@ import json
 import math
 from typing import Optional, Sequence, Tuple
 
+from parallel_skills import methods
+
 # Integer fields that must be >= 1 (every other integer field must be >= 0), in any config class.
 POSITIVE_FIELDS = frozenset({
     "num_envs", "replay_size", "unroll_length", "eval_episodes", "eval_every", "batch_size",
@@ -101,14 +103,10 @@ class SchedulerConfig:
         return max(self.skill_lengths)
 
 
-BASELINES = ("mpo", "kl_reg", "dagger")
-# Methods whose new-skill loss reads the frozen skills' actions (NewSkillConfig.baseline of the
-# same name), and the CRR mix α they take unless given (the paper sweeps {0, 0.5, 1}).
-TEACHER_METHODS = ("kl_reg", "dagger")
-# Baselines that mix their loss with CRR (App. B) take this α unless given (the paper sweeps
-# {0, 0.5, 1} and reports the best; README "Baselines").
-MIX_METHODS = ("kl_reg", "dagger", "rhpo")
-TEACHER_METHOD_ALPHA = 0.5
+# NewSkillConfig.baseline -> whether its loss reads the frozen skills' actions at the batch's
+# states (the methods whose ``teacher_baseline`` it is pass them: ``methods``).
+BASELINE_READS_TEACHER = {"mpo": False, "kl_reg": True, "dagger": True}
+BASELINES = tuple(BASELINE_READS_TEACHER)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -180,6 +178,11 @@ class NewSkillConfig:
         if not 0.0 <= self.dagger_alpha <= 1.0:
             raise ValueError(f"dagger_alpha must be in [0, 1], got {self.dagger_alpha}")
 
+    @property
+    def reads_teacher(self) -> bool:
+        """Whether the policy loss reads the frozen skills' actions (a teacher baseline in the mix)."""
+        return self.mpo_alpha < 1.0 and BASELINE_READS_TEACHER[self.baseline]
+
 
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
@@ -191,11 +194,11 @@ class TrainConfig:
     num_envs: Optional[int] = None  # None: the recipe's (CPU: 32, or 1,024 for "parallel"; accelerator: 4096)
     unroll_length: int = 25  # env steps per env per iteration
     replay_size: Optional[int] = None  # CPU: 300k, accelerator: 1M (paper)
-    # ``METHODS``: "skills" (SkillS). The new skill acting alone: "scratch" (no skills), "finetune"
+    # ``methods.names()``: "skills" (SkillS). The new skill acting alone: "scratch" (no skills), "finetune"
     # (initialised from one library skill: its parameters and observation statistics, the latter
     # then kept fixed), "kl_reg" / "dagger" (the skills as the prior / teacher of its loss:
     # NewSkillConfig.baseline). "rhpo": a mixture of the frozen skills and the new skill chosen at
-    # every step (parallel_skills.rhpo). Paper App. B; the README's "Baselines".
+    # every step (parallel_skills.rhpo). Paper App. B; the README's "Baselines"; ``parallel_skills.methods``.
     method: str = "skills"
     eval_episodes: int = 16
     eval_every: int = 20  # iterations between evaluations
@@ -207,14 +210,13 @@ class TrainConfig:
     scheduler: SchedulerConfig = SchedulerConfig()
     new_skill: NewSkillConfig = NewSkillConfig()
 
-    METHODS = ("skills", "scratch", "finetune", "kl_reg", "dagger", "rhpo")
-
     def __post_init__(self):
-        if self.method not in self.METHODS:
-            raise ValueError(f"method must be one of {', '.join(self.METHODS)}, got {self.method!r}")
-        if self.new_skill.baseline in TEACHER_METHODS and self.method != self.new_skill.baseline:
-            raise ValueError(f"new_skill.baseline {self.new_skill.baseline!r} reads the skills' actions: it needs "
-                             f"method {self.new_skill.baseline!r}, got method {self.method!r}")
+        method = methods.get(self.method)
+        baseline = self.new_skill.baseline
+        if BASELINE_READS_TEACHER[baseline] and method.teacher_baseline != baseline:
+            teachers = [m.name for m in methods.all_methods() if m.teacher_baseline == baseline]
+            raise ValueError(f"new_skill.baseline {baseline!r} reads the skills' actions: it needs "
+                             f"method {' or '.join(map(repr, teachers))}, got method {self.method!r}")
         if self.recipe is not None and self.recipe not in RECIPES:
             raise ValueError(f"recipe must be one of {', '.join(RECIPES)} (or null: the device's), got {self.recipe!r}")
         check_ranges(self)
@@ -234,14 +236,14 @@ def updates_per_iteration(samples_per_insert: float, num_inserted: int, batch_si
 def learner_schedule(config: TrainConfig) -> dict:
     """What a resolved config makes the learners do per iteration: for each learner its batch
     size, updates per iteration and sampled rows per collected env step (the scheduler's
-    augmented labels are not counted: samples-per-insert counts sampled rows). Without SkillS
-    (``method`` other than skills) the scheduler does not learn (0 updates)."""
+    augmented labels are not counted: samples-per-insert counts sampled rows). A method without
+    the scheduler's learner (``Method.learns_scheduler``) gives it 0 updates."""
     steps = config.steps_per_iteration
     out = {"env_steps_per_iteration": steps}
     for name in ("scheduler", "new_skill"):
         sub = getattr(config, name)
         n = updates_per_iteration(sub.samples_per_insert, steps, sub.batch_size)
-        if name == "scheduler" and config.method != "skills":
+        if name == "scheduler" and not methods.get(config.method).learns_scheduler:
             n = 0
         out[name] = {"batch_size": sub.batch_size, "updates_per_iteration": n,
                      "samples_per_env_step": round(n * sub.batch_size / steps, 3)}
@@ -351,24 +353,8 @@ def resolve(config: TrainConfig, backend: Optional[str] = None,
             cfg = dataclasses.replace(cfg, **{learner: dataclasses.replace(sub, **changes)})
             notes.append(f"{learner.replace('_', '-')} " + ", ".join(
                 f"{f}={_show(v)} (paper {_show(getattr(default, f))})" for f, v in changes.items()))
-    if cfg.method == "rhpo" and tuple(cfg.scheduler.skill_lengths) != (1,):
-        if given is not None and "scheduler.skill_lengths" in given:
-            raise ValueError(f"method rhpo chooses a component at every step: scheduler.skill_lengths must be [1], "
-                             f"got {list(cfg.scheduler.skill_lengths)}")
-        # RHPO's categorical is the scheduler's policy with one length: it chooses at every step.
-        cfg = dataclasses.replace(cfg, scheduler=dataclasses.replace(cfg.scheduler, skill_lengths=(1,)))
-        notes.append("method rhpo: scheduler skill_lengths=(1,) (its categorical chooses a component every step)")
-    if cfg.method in MIX_METHODS:
-        sub, changes = cfg.new_skill, {}
-        if cfg.method in TEACHER_METHODS and sub.baseline != cfg.method:
-            changes["baseline"] = cfg.method
-        if (given is None and sub.mpo_alpha == 1.0) or (given is not None and "new_skill.mpo_alpha" not in given):
-            changes["mpo_alpha"] = TEACHER_METHOD_ALPHA
-        changes = {f: v for f, v in changes.items() if getattr(sub, f) != v}
-        if changes:
-            cfg = dataclasses.replace(cfg, new_skill=dataclasses.replace(sub, **changes))
-            notes.append(f"method {cfg.method}: new-skill " + ", ".join(f"{f}={_show(v)}" for f, v in changes.items()))
-    return cfg, notes
+    cfg, method_notes = methods.get(cfg.method).resolve(cfg, None if given is None else sorted(given))
+    return cfg, notes + method_notes
 
 
 # ----------------------------------------------------------------------------- JSON input

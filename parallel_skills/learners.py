@@ -434,20 +434,18 @@ def new_skill_targets(state: LearnerState, batch: Transition, networks, key_next
                      axis=-1)  # [B, J]
     y = td_target(batch.reward, batch.discount, q_next, config.discount)
     t_mean = t_std = a_mpo = jnp.zeros((0,))
-    if config.baseline == "kl_reg" and config.mpo_alpha < 1.0:  # (π_old is not needed: the prior proposes)
+    if config.mpo_alpha < 1.0 and BASELINE_LOSSES[config.baseline].prior_proposes:  # (no π_old: the prior proposes)
         a_mpo = sample_mixture(teacher.means, teacher.std, key_mpo, config.mpo_num_samples)
-    elif _uses_gaussian_mpo(config):
+    elif uses_gaussian_mpo(config):
         t_mean, t_std = policy.apply(state.target_policy_params, batch.obs)
         a_mpo = _sample_n(t_mean, t_std, config.mpo_num_samples, key_mpo)
     return NewSkillTargets(y=y, mpo_mean=t_mean, mpo_std=t_std, mpo_actions=a_mpo)
 
 
-def _uses_gaussian_mpo(config: NewSkillConfig) -> bool:
+def uses_gaussian_mpo(config: NewSkillConfig) -> bool:
     """Whether the policy loss has a Gaussian MPO term (weight > 0): the mpo baseline, or dagger
-    with dagger_alpha < 1, inside a CRR mix with mpo_alpha < 1."""
-    if config.mpo_alpha >= 1.0 or config.baseline == "kl_reg":
-        return False
-    return config.baseline == "mpo" or config.dagger_alpha < 1.0
+    with dagger_alpha < 1, inside a CRR mix with mpo_alpha < 1 (``BaselineLoss.gaussian_mpo``)."""
+    return config.mpo_alpha < 1.0 and BASELINE_LOSSES[config.baseline].gaussian_mpo(config)
 
 
 def new_skill_loss(params, batch: Transition, targets: NewSkillTargets, networks, key_crr,
@@ -489,7 +487,7 @@ def new_skill_loss(params, batch: Transition, targets: NewSkillTargets, networks
 
 def baseline_policy_loss(mean, std, targets: NewSkillTargets, q_mpo, dual_params, weight, config: NewSkillConfig,
                          teacher: Optional[SkillMixture]) -> Tuple[jax.Array, Dict[str, jax.Array]]:
-    """L_baseline of the CRR mix (paper App. B), by ``config.baseline``:
+    """L_baseline of the CRR mix (paper App. B), by ``config.baseline`` (``BASELINE_LOSSES``):
 
     * "mpo": decoupled Gaussian MPO on samples of π_old (``mpo.gaussian_mpo_loss``);
     * "kl_reg": MPO regularised to the skills' mixture π₀: E-step q ∝ π₀·exp(Q/η) on samples of
@@ -500,24 +498,56 @@ def baseline_policy_loss(mean, std, targets: NewSkillTargets, q_mpo, dual_params
 
     mean, std [B, A] the online policy; q_mpo [B, n_mpo] Q of ``targets.mpo_actions`` (stop-gradient);
     weight [B]. Returns (loss, stats)."""
+    return BASELINE_LOSSES[config.baseline].loss(mean, std, targets, q_mpo, dual_params, weight, config, teacher)
+
+
+def mpo_baseline_loss(mean, std, targets: NewSkillTargets, q_mpo, dual_params, weight, config: NewSkillConfig,
+                      teacher=None) -> Tuple[jax.Array, Dict[str, jax.Array]]:
+    """The Gaussian MPO term (zero, no stats, when ``uses_gaussian_mpo`` is False: pure DAGGER)."""
+    del teacher
+    if not uses_gaussian_mpo(config):  # pure DAGGER (dagger_alpha = 1): no MPO term, no samples
+        return jnp.zeros(()), {}
+    return gaussian_mpo_loss(
+        mean, std, targets.mpo_mean, targets.mpo_std, targets.mpo_actions, q_mpo,
+        positive(dual_params["log_temperature"]), positive(dual_params["log_alpha_mean"]),
+        positive(dual_params["log_alpha_stddev"]), config.mpo_epsilon, config.mpo_epsilon_mean,
+        config.mpo_epsilon_stddev, weight)
+
+
+def kl_reg_baseline_loss(mean, std, targets: NewSkillTargets, q_mpo, dual_params, weight, config: NewSkillConfig,
+                         teacher: SkillMixture) -> Tuple[jax.Array, Dict[str, jax.Array]]:
+    """MPO regularised to the skills' mixture π₀ (samples of π₀ in ``targets.mpo_actions``)."""
     temperature = positive(dual_params["log_temperature"])
-    if config.baseline == "kl_reg":
-        log_prior = mixture_log_prob(teacher.means, teacher.std, targets.mpo_actions)  # [B, n_mpo]
-        weights, loss_temperature = prior_e_step(q_mpo, log_prior, log_prior, temperature, config.mpo_epsilon, weight)
-        loss, stats = kl_reg_mpo_loss(mean, std, targets.mpo_actions, weights, weight)
-        return loss + loss_temperature, dict(stats, mpo_temperature=temperature)
-    if not _uses_gaussian_mpo(config):  # pure DAGGER (dagger_alpha = 1): no MPO term, no samples
-        loss_mpo, stats = jnp.zeros(()), {}
-    else:
-        loss_mpo, stats = gaussian_mpo_loss(
-            mean, std, targets.mpo_mean, targets.mpo_std, targets.mpo_actions, q_mpo, temperature,
-            positive(dual_params["log_alpha_mean"]), positive(dual_params["log_alpha_stddev"]), config.mpo_epsilon,
-            config.mpo_epsilon_mean, config.mpo_epsilon_stddev, weight)
-    if config.baseline != "dagger":
-        return loss_mpo, stats
+    log_prior = mixture_log_prob(teacher.means, teacher.std, targets.mpo_actions)  # [B, n_mpo]
+    weights, loss_temperature = prior_e_step(q_mpo, log_prior, log_prior, temperature, config.mpo_epsilon, weight)
+    loss, stats = kl_reg_mpo_loss(mean, std, targets.mpo_actions, weights, weight)
+    return loss + loss_temperature, dict(stats, mpo_temperature=temperature)
+
+
+def dagger_baseline_loss(mean, std, targets: NewSkillTargets, q_mpo, dual_params, weight, config: NewSkillConfig,
+                         teacher: SkillMixture) -> Tuple[jax.Array, Dict[str, jax.Array]]:
+    """dagger_alpha·(cross-entropy to π₀) + (1 − dagger_alpha)·Gaussian MPO."""
+    loss_mpo, stats = mpo_baseline_loss(mean, std, targets, q_mpo, dual_params, weight, config)
     cross_entropy = dagger_cross_entropy(mean, std, teacher.means, teacher.std, weight)
     loss = config.dagger_alpha * cross_entropy + (1.0 - config.dagger_alpha) * loss_mpo
     return loss, dict(stats, dagger_cross_entropy=cross_entropy)
+
+
+class BaselineLoss(NamedTuple):
+    """How one ``NewSkillConfig.baseline`` enters the new skill's loss."""
+
+    prior_proposes: bool  # its MPO samples are the skills' mixture π₀'s (else π_old's)
+    gaussian_mpo: Callable[[NewSkillConfig], bool]  # it has a Gaussian MPO term of weight > 0
+    loss: Callable  # (mean, std, targets, q_mpo, dual_params, weight, config, teacher) -> (loss, stats)
+
+
+# (Whether a baseline reads the teacher is config.BASELINE_READS_TEACHER: configs check it.)
+BASELINE_LOSSES = {
+    "mpo": BaselineLoss(prior_proposes=False, gaussian_mpo=lambda c: True, loss=mpo_baseline_loss),
+    "kl_reg": BaselineLoss(prior_proposes=True, gaussian_mpo=lambda c: False, loss=kl_reg_baseline_loss),
+    "dagger": BaselineLoss(prior_proposes=False, gaussian_mpo=lambda c: c.dagger_alpha < 1.0,
+                           loss=dagger_baseline_loss),
+}
 
 
 def new_skill_stats(aux: NewSkillAux, batch: Transition) -> Dict[str, jax.Array]:
@@ -543,7 +573,7 @@ def new_skill_learner_update(state: LearnerState, batch: Transition, key: jax.Ar
     (``replay.Transition``: obs, action, reward, discount, next_obs, weight; rows with weight 0
     are ignored). Critics (E = num_critics) regress on one target; clipped double Q for E > 1.
     ``teacher``: the skills at the batch's states, needed by the kl_reg and dagger baselines."""
-    if config.mpo_alpha < 1.0 and config.baseline in ("kl_reg", "dagger") and teacher is None:
+    if config.reads_teacher and teacher is None:
         raise ValueError(f"new_skill.baseline {config.baseline!r} needs the skills' actions (teacher)")
     batch = as_float32(batch)
     networks = new_skill_networks(batch.action.shape[-1], config)

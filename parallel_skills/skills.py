@@ -20,10 +20,44 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from flax import struct
+
 from parallel_skills.normalization import CLIP
 from parallel_skills.numpy_policy import read_npz_json
 
 Params = Any
+
+
+@struct.dataclass
+class GaussianSkillParams:
+    """A Gaussian-MLP skill's parameters: the policy's flax variables and the observation
+    statistics it normalises with, obs_mean / obs_std [O] (``(obs − mean) / std``, clipped)."""
+
+    policy: Params
+    obs_mean: jax.Array
+    obs_std: jax.Array
+
+    @classmethod
+    def from_normalizer(cls, policy: Params, stats) -> "GaussianSkillParams":
+        """The params of a trained policy and its run's ``normalization.RunningStats``."""
+        from parallel_skills.normalization import std
+
+        return cls(policy=policy, obs_mean=stats.mean, obs_std=std(stats))
+
+    @classmethod
+    def of(cls, params) -> "GaussianSkillParams":
+        """``params`` as GaussianSkillParams: itself, or a {"policy", "obs_mean", "obs_std"}
+        mapping (the layout of the saved files, ``flatten_params``)."""
+        if isinstance(params, cls):
+            return params
+        try:
+            return cls(policy=params["policy"], obs_mean=params["obs_mean"], obs_std=params["obs_std"])
+        except (KeyError, TypeError):
+            raise ValueError("Gaussian-MLP skill parameters need policy, obs_mean and obs_std") from None
+
+    def as_dict(self) -> dict:
+        """{"policy", "obs_mean", "obs_std"}: the layout ``Skill.save`` flattens."""
+        return {"policy": self.policy, "obs_mean": self.obs_mean, "obs_std": self.obs_std}
 
 
 def _no_params_apply(fn):
@@ -64,18 +98,20 @@ class Skill:
     def gaussian_mlp(name: str, params: Params, action_size: int, hidden: Sequence[int], **metadata) -> "Skill":
         """A skill from new-skill (Gaussian MLP) parameters; acts with the mean action.
 
-        ``params`` = {"policy": flax variables, "obs_mean": [O], "obs_std": [O]}: observations
-        are normalised with the training run's statistics before the network."""
+        ``params``: ``GaussianSkillParams`` (or a {"policy", "obs_mean", "obs_std"} mapping):
+        observations are normalised with the training run's statistics before the network.
+        ``None``: the architecture alone, whose ``apply`` takes the params at call time."""
         from parallel_skills import networks
 
         net = networks.GaussianPolicy(action_size=action_size, hidden=tuple(hidden))
 
-        def apply(p, obs, key):
-            x = jnp.clip((obs - p["obs_mean"]) / p["obs_std"], -CLIP, CLIP)
-            mean, _ = net.apply(p["policy"], x)
+        def apply(p: GaussianSkillParams, obs, key):
+            x = jnp.clip((obs - p.obs_mean) / p.obs_std, -CLIP, CLIP)
+            mean, _ = net.apply(p.policy, x)
             return mean
 
         meta = dict(metadata, action_size=int(action_size), hidden=[int(h) for h in hidden])
+        params = None if params is None else GaussianSkillParams.of(params)
         return Skill(name=name, apply=apply, params=params, arch=f"gaussian_mlp{tuple(hidden)}->{action_size}",
                      metadata=meta)
 
@@ -86,7 +122,7 @@ class Skill:
         written."""
         if self.params is None:
             raise ValueError(f"skill {self.name!r} has no parameters to save (scripted skills are code, not files)")
-        flat = _flatten(self.params)
+        flat = flatten_params(self.params.as_dict() if isinstance(self.params, GaussianSkillParams) else self.params)
         meta = dict(self.metadata, **metadata, name=self.name, arch=self.arch)
         base = path[:-4] if path.endswith(".npz") else path
         tmp = base + ".tmp.npz"
@@ -126,13 +162,14 @@ class Skill:
             raise ValueError(f"skill {base}.npz expects observations of size {o_size}, the task gives {obs_size}")
         if action_size is not None and a_size != int(action_size):
             raise ValueError(f"skill {base}.npz produces actions of size {a_size}, the task takes {action_size}")
-        params = _unflatten(flat)
+        params = GaussianSkillParams.of(unflatten_params(flat))
         rest = {k: v for k, v in meta.items() if k not in ("hidden", "action_size", "name", "arch", "obs_size")}
         return Skill.gaussian_mlp(meta.get("name", os.path.basename(base)), jax.tree.map(jnp.asarray, params),
                                   a_size, hidden, obs_size=o_size, **rest)
 
 
-def _flatten(params: Params) -> dict:
+def flatten_params(params: Params) -> dict:
+    """A nested dict of arrays as ``{"a/b/c": numpy array}`` (the .npz layout of skills and exports)."""
     out = {}
 
     def rec(prefix, node):
@@ -155,7 +192,8 @@ def _to_dict(params):
         return params
 
 
-def _unflatten(flat: dict) -> dict:
+def unflatten_params(flat: dict) -> dict:
+    """The inverse of ``flatten_params``: ``{"a/b/c": x}`` -> ``{"a": {"b": {"c": x}}}``."""
     root: dict = {}
     for key, value in flat.items():
         node = root
@@ -196,6 +234,16 @@ class SkillSet:
     @property
     def names(self) -> list[str]:
         return [s.name for s in self.skills]
+
+    @property
+    def vmapped_groups(self) -> list[list[int]]:
+        """The indices of the skills run together in one vmap (same architecture and shapes)."""
+        return [list(idxs) for idxs, _, _ in self._stacked]
+
+    @property
+    def unstacked(self) -> list[int]:
+        """The indices of the skills run one by one."""
+        return list(self._single)
 
     @property
     def collection_noise(self) -> np.ndarray:

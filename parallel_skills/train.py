@@ -17,21 +17,21 @@ import dataclasses
 import logging
 import math
 import time
-from typing import Any, Callable, Optional, Sequence
+from typing import Any, Callable, NamedTuple, Optional, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from parallel_skills import learners, networks, sharding
+from parallel_skills import learners, methods, networks, sharding
 from parallel_skills import normalization as obs_norm
 from parallel_skills.acting import Actor, ActorState, StepStats
 from parallel_skills.config import TrainConfig, resolve, updates_per_iteration
 from parallel_skills.evaluation import rollout_episodes
 from parallel_skills.replay import PendingStep, Replay, Transition
 from parallel_skills.rhpo import rhpo_learner_update
-from parallel_skills.skills import Skill, SkillSet
+from parallel_skills.skills import GaussianSkillParams, Skill, SkillSet
 
 log = logging.getLogger("parallel_skills")
 
@@ -54,6 +54,25 @@ class TrainingState:
     pending: Optional[PendingStep] = None
 
 
+@struct.dataclass
+class TrainedParams:
+    """What ``train`` returns of a run's networks: the new skill's and the scheduler's policy
+    variables (flax) and the observation statistics both normalise with."""
+
+    new_skill: Any
+    scheduler: Any
+    normalizer: obs_norm.RunningStats
+
+    @classmethod
+    def of(cls, state: "TrainingState") -> "TrainedParams":
+        return cls(new_skill=state.new_skill.policy_params, scheduler=state.scheduler.policy_params,
+                   normalizer=state.normalizer)
+
+    def new_skill_params(self) -> GaussianSkillParams:
+        """The new skill as a Gaussian-MLP skill's parameters (``Skill.gaussian_mlp``)."""
+        return GaussianSkillParams.from_normalizer(self.new_skill, self.normalizer)
+
+
 @dataclasses.dataclass(frozen=True)
 class Trainer:
     """Pure functions of a configured run (see ``make_trainer``)."""
@@ -74,21 +93,21 @@ class Trainer:
 
 def make_actor(environment, skills: Sequence[Skill], config: TrainConfig, num_envs: int) -> Actor:
     """The acting functions of ``num_envs`` envs (``skills``: the frozen ones; none from scratch).
-    SkillS's scheduler chooses (RHPO's categorical, a scheduler with K = {1}, for rhpo); with every
-    other method the new skill always acts."""
+    The scheduler chooses when the method says so (``Method.scheduler_acts``: SkillS's scheduler,
+    RHPO's categorical, a scheduler with K = {1}); otherwise the new skill always acts."""
     n_total = len(skills) + 1  # frozen skills + the new skill (index N)
     return Actor(env=environment, skill_set=SkillSet(skills),
                  scheduler_apply=learners.make_scheduler_apply(n_total, config.scheduler),
                  new_skill_apply=learners.make_new_skill_apply(int(environment.action_size), config.new_skill),
                  skill_lengths=tuple(config.scheduler.skill_lengths), num_envs=int(num_envs),
-                 skill_noise_std=config.skill_noise_std, scheduler_acts=config.method in ("skills", "rhpo"))
+                 skill_noise_std=config.skill_noise_std, scheduler_acts=methods.get(config.method).scheduler_acts)
 
 
 def make_replay(environment, config: TrainConfig) -> Replay:
     sc, nc = config.scheduler, config.new_skill
     capacity = max(int(config.replay_size), config.steps_per_iteration, sc.batch_size, nc.batch_size)
     # (The scheduler's n-step rows only where its learner runs: SkillS.)
-    sched_n = int(sc.n_step) if config.method == "skills" else 1
+    sched_n = int(sc.n_step) if methods.get(config.method).learns_scheduler else 1
     return Replay(capacity=capacity, num_envs=int(config.num_envs), obs_size=int(environment.observation_size),
                   action_size=int(environment.action_size), scheduler_batch_size=sc.batch_size,
                   new_skill_batch_size=nc.batch_size, n_step=int(nc.n_step), discount=nc.discount,
@@ -146,24 +165,25 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig, mesh
     parallel over the mesh's devices and computes what it computes on one device."""
     if config.num_envs is None or config.replay_size is None:
         raise ValueError("make_trainer needs a resolved config (see parallel_skills.config.resolve)")
-    initial_skill = finetune_source(skills, config) if config.method == "finetune" else None
-    skills = [] if config.method in ("scratch", "finetune") else list(skills)
+    method = methods.get(config.method)
+    initial_skill = finetune_source(skills, config) if method.starts_from_skill else None
+    skills = list(skills) if method.frozen_skills else []
     n_total = len(skills) + 1  # frozen skills + the new skill (index N)
     sc, nc = config.scheduler, config.new_skill
     obs_size, action_size = int(environment.observation_size), int(environment.action_size)
-    learn_scheduler = config.method == "skills"
+    learn_scheduler = method.learns_scheduler
     steps_per_iter = config.steps_per_iteration
     n_sched = updates_per_iteration(sc.samples_per_insert, steps_per_iter, sc.batch_size)
     n_new = updates_per_iteration(nc.samples_per_insert, steps_per_iter, nc.batch_size)
     actor = make_actor(environment, skills, config, config.num_envs)
     replay = make_replay(environment, config)
 
-    # kl_reg / dagger: the new skill's loss reads the frozen skills' actions at its batch's states;
-    # rhpo at its states and next states (the mixture's components).
-    rhpo = config.method == "rhpo"
-    with_teacher = nc.mpo_alpha < 1.0 and nc.baseline in ("kl_reg", "dagger")
+    # A teacher baseline (kl_reg / dagger): the new skill's loss reads the frozen skills' actions at
+    # its batch's states; the mixture learner (rhpo) at its states and next states (the components).
+    rhpo = method.mixture_learner
+    with_teacher = nc.reads_teacher
     if rhpo and not skills:
-        raise ValueError("method rhpo needs at least one frozen skill (its mixture's components)")
+        raise ValueError(f"method {method.name} needs at least one frozen skill (its mixture's components)")
     if mesh is not None and mesh.size > 1:
         sharding.check_divisible(config, mesh.size)
         envs = lambda tree: sharding.constrain(tree, mesh, config.num_envs)  # noqa: E731
@@ -263,7 +283,7 @@ def finetune_source(skills: Sequence[Skill], config: TrainConfig) -> Skill:
         raise ValueError(f"method finetune starts from exactly one skill, got {len(skills)}")
     s = skills[0]
     hidden = s.metadata.get("hidden")
-    if s.params is None or hidden is None or "policy" not in s.params:
+    if not isinstance(s.params, GaussianSkillParams) or hidden is None:
         raise ValueError(f"method finetune needs a network skill (e.g. from the library), {s.name!r} has no "
                          "network parameters (scripted skills are code)")
     if tuple(int(h) for h in hidden) != tuple(config.new_skill.hidden):
@@ -276,9 +296,9 @@ def start_from_skill(new_skill: learners.LearnerState, skill: Skill):
     """The new skill's learner state with ``skill``'s policy as online and target policy, and the
     skill's observation statistics as the normaliser (the critic starts fresh). Returns
     (learner state, normaliser)."""
-    policy = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), skill.params["policy"])
-    mean = jnp.asarray(skill.params["obs_mean"], jnp.float32)
-    std = jnp.asarray(skill.params["obs_std"], jnp.float32)
+    policy = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), skill.params.policy)
+    mean = jnp.asarray(skill.params.obs_mean, jnp.float32)
+    std = jnp.asarray(skill.params.obs_std, jnp.float32)
     # count 1 and m2 = std²: normalize() reproduces (obs − mean) / std exactly (std ≥ STD_FLOOR).
     normalizer = obs_norm.RunningStats(count=jnp.ones(()), mean=mean, m2=jnp.square(std))
     return new_skill.replace(policy_params=policy, target_policy_params=policy), normalizer
@@ -296,10 +316,10 @@ def make_policy_factory(action_size: int, config: TrainConfig, num_skills_total:
     sched_apply = learners.make_scheduler_apply(num_skills_total, config.scheduler)
     lengths = jnp.asarray(config.scheduler.skill_lengths, jnp.int32)
 
-    def make_policy(params, which: str = "new_skill", deterministic: bool = True):
-        stats = params["normalizer"]
+    def make_policy(params: TrainedParams, which: str = "new_skill", deterministic: bool = True):
+        stats = params.normalizer
         if which == "new_skill":
-            p = params["new_skill"]
+            p = params.new_skill
 
             def policy(obs, key):
                 mean, std = new_apply(p, obs_norm.normalize(stats, obs))
@@ -307,7 +327,7 @@ def make_policy_factory(action_size: int, config: TrainConfig, num_skills_total:
 
             return policy
         if which == "scheduler":
-            p = params["scheduler"]
+            p = params.scheduler
 
             def policy(obs, key):
                 li, lk = sched_apply(p, obs_norm.normalize(stats, obs))
@@ -324,20 +344,39 @@ def make_policy_factory(action_size: int, config: TrainConfig, num_skills_total:
     return make_policy
 
 
-def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: int, mesh=None):
+class Evaluators(NamedTuple):
+    """The jitted whole-episode evaluations of ``make_evaluators``; each returns a dict of
+    per-episode arrays [num_episodes] (``return``, ``success``, ...)."""
+
+    new_skill: Callable  # (new_params, normalizer, key): the new skill alone, mean actions
+    new_skill_sampled: Callable  # (new_params, normalizer, key): the same, actions sampled from π_N
+    scheduler: Callable  # (sched_params, new_params, normalizer, key): greedy decisions
+    scheduler_sampled: Callable  # (sched_params, critic_params, new_params, normalizer, key)
+
+
+def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: int, mesh=None) -> Evaluators:
     """Jitted whole-episode evaluations of the new skill alone and of the scheduler alone
-    (paper App. C.3): ``eval_new(new_params, normalizer, key)``,
-    ``eval_scheduler(sched_params, new_params, normalizer, key)`` -> dict of per-episode ``return`` /
-    ``success`` [num_episodes]. The scheduler acts greedily (argmax z) with its counters, through
-    the run's acting step (``Actor.step``) on ``num_episodes`` envs. The third,
-    ``eval_scheduler_sampled(sched_params, critic_params, new_params, normalizer, key)``, runs it as it
-    collects (sampled, with the collection noise) and adds ``discounted_return`` and its critic's
-    ``value_at_reset`` per episode."""
+    (paper App. C.3): ``new_skill(new_params, normalizer, key)`` acts with the new skill's mean
+    action (the deterministic policy ``training.evaluate`` and the export run);
+    ``new_skill_sampled`` with actions sampled from its Gaussian, as it acts when the scheduler
+    picks it during collection; ``scheduler(sched_params, new_params, normalizer, key)`` acts
+    greedily (argmax z) with its counters, through the run's acting step (``Actor.step``) on
+    ``num_episodes`` envs; ``scheduler_sampled(sched_params, critic_params, new_params, normalizer,
+    key)`` runs it as it collects (sampled, with the collection noise) and adds
+    ``discounted_return`` and its critic's ``value_at_reset`` per episode. Each returns a dict of
+    per-episode ``return`` / ``success`` [num_episodes]."""
     new_apply = learners.make_new_skill_apply(int(env.action_size), trainer.config.new_skill)
     actor = make_actor(env, trainer.skills, trainer.config, num_episodes)
 
     def eval_new(new_params, normalizer, key):
         policy = lambda obs, k: new_apply(new_params, obs_norm.normalize(normalizer, obs))[0]  # noqa: E731
+        return rollout_episodes(env, policy, key, num_episodes, episode_length)
+
+    def eval_new_sampled(new_params, normalizer, key):
+        def policy(obs, k):
+            mean, std = new_apply(new_params, obs_norm.normalize(normalizer, obs))
+            return networks.sample_action(mean, std, k)
+
         return rollout_episodes(env, policy, key, num_episodes, episode_length)
 
     def eval_scheduler(sched_params, new_params, normalizer, key):
@@ -374,7 +413,8 @@ def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: in
                                                       jax.random.split(k1, episode_length))
         return {"return": ret, "success": succ, "discounted_return": disc_ret, "value_at_reset": value}
 
-    return jax.jit(eval_new), jax.jit(eval_scheduler), jax.jit(eval_scheduler_sampled)
+    return Evaluators(new_skill=jax.jit(eval_new), new_skill_sampled=jax.jit(eval_new_sampled),
+                      scheduler=jax.jit(eval_scheduler), scheduler_sampled=jax.jit(eval_scheduler_sampled))
 
 
 def _checked_config(environment, skills, config: TrainConfig, num_timesteps, num_envs, checkpoint_every,
@@ -434,8 +474,8 @@ def train(
 ):
     """Train SkillS on ``environment`` (Brax env API) with frozen ``skills``.
 
-    Returns ``(make_policy, params, metrics)``: ``params`` = {"new_skill", "scheduler"} policy
-    parameters, ``metrics`` the last evaluation and training metrics (Python floats / lists).
+    Returns ``(make_policy, params, metrics)``: ``params`` a ``TrainedParams`` (the new skill's
+    and the scheduler's policy parameters and the observation statistics), ``metrics`` the last evaluation and training metrics (Python floats / lists).
     ``progress_fn(env_steps, metrics)`` is called after every evaluation (Brax style);
     ``step_fn(env_steps)`` after every iteration (a progress bar's count; a host int, no device sync).
     ``auto_config``: fill the device's defaults with ``resolve(config)``; False: train with ``config``
@@ -457,21 +497,14 @@ def train(
     run computes, up to float summation order. ``num_envs`` and both learner batch sizes must
     divide by the device count. Every process calls ``train`` alike; the callbacks run in each.
     """
-    config = _checked_config(environment, skills, config, num_timesteps, num_envs, checkpoint_every, auto_config)
-    episode_length = int(episode_length or getattr(environment, "episode_length", 1000))
-    mesh = mesh if mesh is not None and mesh.size > 1 else None
-    trainer = make_trainer(environment, skills, config, mesh)
-    init, iteration, place = _compiled(trainer, mesh, seed_axis=False)
-    state = init(jax.random.PRNGKey(seed)) if initial_state is None else place(initial_state)
-    state, (metrics,) = _host_loop(
-        trainer, iteration, state, None,
-        [make_evaluation(eval_env or environment, trainer, episode_length, seed, mesh)],
-        num_timesteps, [host_state], [progress_fn], [checkpoint_fn], checkpoint_every, checkpoint_min_seconds,
-        step_fn)
-    params = {"new_skill": state.new_skill.policy_params, "scheduler": state.scheduler.policy_params,
-              "normalizer": state.normalizer}
-    make_policy = make_policy_factory(int(environment.action_size), config, trainer.num_skills_total)
-    return make_policy, params, metrics
+    make_policy, params, metrics = train_seeds(
+        environment, skills, seeds=[seed], num_timesteps=num_timesteps, num_envs=num_envs,
+        episode_length=episode_length, config=config, eval_env=eval_env, progress_fns=[progress_fn],
+        initial_states=None if initial_state is None else [initial_state], host_states=[host_state],
+        checkpoint_fns=[checkpoint_fn], checkpoint_every=checkpoint_every,
+        checkpoint_min_seconds=checkpoint_min_seconds, step_fn=step_fn, auto_config=auto_config, mesh=mesh,
+        seed_axis=False)
+    return make_policy, params[0], metrics[0]
 
 
 def train_seeds(
@@ -493,6 +526,7 @@ def train_seeds(
     step_fn: Optional[Callable[[int], None]] = None,
     auto_config: bool = True,
     mesh=None,
+    seed_axis: bool = True,
 ):
     """``train`` for several seeds at once: one compiled iteration ``vmap``-ed over the seed axis
     (S = len(seeds) runs in lockstep: on an accelerator S times the envs for about the cost of one
@@ -502,6 +536,9 @@ def train_seeds(
     ``train``'s keys, so seed s evaluates the same episodes as a single run of s; the learning
     itself matches a single run up to float reordering in the batched matrix products
     (tests/test_train.py states the tolerance).
+
+    ``seed_axis`` False: one seed, its state unbatched (no vmap): what ``train`` runs, through this
+    same code path.
 
     Returns ``(make_policy, [params per seed], [metrics per seed])``.
     """
@@ -513,29 +550,32 @@ def train_seeds(
     progress_fns, host_states, checkpoint_fns = per_seed(progress_fns), per_seed(host_states), per_seed(checkpoint_fns)
     if any(len(x) != n for x in (progress_fns, host_states, checkpoint_fns)):
         raise ValueError(f"progress_fns, host_states and checkpoint_fns need one entry per seed ({n})")
+    if not seed_axis and n != 1:
+        raise ValueError(f"seed_axis=False trains one seed, got {n}")
     config = _checked_config(environment, skills, config, num_timesteps, num_envs, checkpoint_every, auto_config)
     episode_length = int(episode_length or getattr(environment, "episode_length", 1000))
     mesh = mesh if mesh is not None and mesh.size > 1 else None
     trainer = make_trainer(environment, skills, config, mesh)
-    init, iteration, place = _compiled(trainer, mesh, seed_axis=True)
+    init, iteration, place = compile_trainer(trainer, mesh, seed_axis=seed_axis)
     if initial_states is None:
-        state = init(jnp.stack([jax.random.PRNGKey(s) for s in seeds]))
+        keys = [jax.random.PRNGKey(s) for s in seeds]
+        state = init(jnp.stack(keys) if seed_axis else keys[0])
     else:
         if len(initial_states) != n:
             raise ValueError(f"initial_states needs one state per seed ({n}), got {len(initial_states)}")
-        if len({int(s.iteration) for s in initial_states}) != 1:
+        if seed_axis and len({int(s.iteration) for s in initial_states}) != 1:
             raise ValueError("initial_states must all be at the same iteration (checkpoints of one vmapped run)")
-        state = place(jax.tree.map(lambda *xs: jnp.stack(xs), *initial_states))
+        state = place(jax.tree.map(lambda *xs: jnp.stack(xs), *initial_states) if seed_axis else initial_states[0])
     evaluates = [make_evaluation(eval_env or environment, trainer, episode_length, s, mesh) for s in seeds]
-    state, metrics = _host_loop(trainer, iteration, state, n, evaluates, num_timesteps, host_states, progress_fns,
-                                checkpoint_fns, checkpoint_every, checkpoint_min_seconds, step_fn)
-    params = [{"new_skill": st.new_skill.policy_params, "scheduler": st.scheduler.policy_params,
-               "normalizer": st.normalizer} for st in (_seed_slice(state, i) for i in range(n))]
+    state, metrics = _host_loop(trainer, iteration, state, n if seed_axis else None, evaluates, num_timesteps,
+                                host_states, progress_fns, checkpoint_fns, checkpoint_every, checkpoint_min_seconds,
+                                step_fn)
+    params = [TrainedParams.of(_seed_slice(state, i if seed_axis else None)) for i in range(n)]
     make_policy = make_policy_factory(int(environment.action_size), config, trainer.num_skills_total)
     return make_policy, params, metrics
 
 
-def _compiled(trainer: Trainer, mesh, seed_axis: bool):
+def compile_trainer(trainer: Trainer, mesh, seed_axis: bool):
     """``(init(key), iteration(state), place(state))`` jitted for one device (``mesh`` None) or data
     parallel over ``mesh`` (``sharding.state_shardings`` in and out; ``place`` puts a restored state
     on the mesh). ``seed_axis``: ``train_seeds``' functions, vmapped over a leading seed axis."""
@@ -621,25 +661,29 @@ def make_evaluation(env, trainer: Trainer, episode_length: int, seed: int,
     from (seed, iteration), not from the loop's history: a resumed run draws the same evaluation
     episodes as an uninterrupted one. ``mesh``: the evaluations run replicated on its devices (every
     process of a multi-process run evaluates the same episodes)."""
-    eval_new, eval_sched, eval_sampled = make_evaluators(env, trainer, trainer.config.eval_episodes, episode_length,
-                                                         mesh)
+    evals = make_evaluators(env, trainer, trainer.config.eval_episodes, episode_length, mesh)
     base_key = jax.random.PRNGKey(seed + 10_000)
+    method = methods.get(trainer.config.method)
     place = (lambda k: k) if mesh is None else (lambda k: sharding.put(k, sharding.replicated(mesh)))  # noqa: E731
 
     def evaluate(state: TrainingState, iteration: int) -> dict:
         k1, k2 = map(place, jax.random.split(jax.random.fold_in(base_key, iteration)))
         # (A key of its own: the greedy evaluations draw what they drew before it existed.)
         k3 = place(jax.random.fold_in(jax.random.fold_in(base_key, iteration), 1))
-        ev = eval_new(state.new_skill.policy_params, state.normalizer, k1)
+        k4 = place(jax.random.fold_in(jax.random.fold_in(base_key, iteration), 2))
+        ev = evals.new_skill(state.new_skill.policy_params, state.normalizer, k1)
         # (device_get first: a multi-process run's arrays are global, this process reads its replica.)
         mean = lambda x: float(jnp.mean(jax.device_get(x)))  # noqa: E731
         out = {"eval/new_skill_success": mean(ev["success"]), "eval/new_skill_return": mean(ev["return"])}
-        if trainer.config.method in ("skills", "rhpo"):  # the scheduler acting (rhpo: the whole mixture)
-            ev = eval_sched(state.scheduler.policy_params, state.new_skill.policy_params, state.normalizer, k2)
+        ev = evals.new_skill_sampled(state.new_skill.policy_params, state.normalizer, k4)
+        out["eval/new_skill_sampled_success"] = mean(ev["success"])
+        out["eval/new_skill_sampled_return"] = mean(ev["return"])
+        if method.scheduler_acts:  # the scheduler acting (rhpo: the whole mixture)
+            ev = evals.scheduler(state.scheduler.policy_params, state.new_skill.policy_params, state.normalizer, k2)
             out["eval/scheduler_success"] = mean(ev["success"])
             out["eval/scheduler_return"] = mean(ev["return"])
-        if trainer.config.method == "skills":  # the scheduler as it collects; its critic at the reset states
-            ev = eval_sampled(state.scheduler.policy_params, state.scheduler.critic_params,
+        if method.learns_scheduler:  # the scheduler as it collects; its critic at the reset states
+            ev = evals.scheduler_sampled(state.scheduler.policy_params, state.scheduler.critic_params,
                               state.new_skill.policy_params, state.normalizer, k3)
             out["eval/scheduler_sampled_success"] = mean(ev["success"])
             out["eval/scheduler_sampled_return"] = mean(ev["return"])

@@ -11,7 +11,8 @@ import pytest
 import tasks
 from parallel_skills import NewSkillConfig, SchedulerConfig, Skill, TrainConfig
 from parallel_skills import normalization as obs_norm
-from parallel_skills.config import TEACHER_METHOD_ALPHA, resolve
+from parallel_skills.config import resolve
+from parallel_skills.methods import MIX_ALPHA
 from parallel_skills.replay import Transition
 from parallel_skills.train import finetune_source, make_trainer
 from tasks.manipulation import scripted
@@ -52,7 +53,7 @@ def _finite(m):
 def test_teacher_methods_run_three_iterations(method, extra):
     trainer, state, history = _run(dataclasses.replace(SMALL, method=method), _skills())
     cfg = trainer.config.new_skill
-    assert cfg.baseline == method and cfg.mpo_alpha == TEACHER_METHOD_ALPHA  # set by resolve
+    assert cfg.baseline == method and cfg.mpo_alpha == MIX_ALPHA  # set by resolve
     assert trainer.scheduler_updates == 0 and trainer.new_skill_updates > 0
     last = history[-1]
     assert _finite(last) and last["new_skill/critic_loss"] > 0 and extra in last
@@ -107,8 +108,8 @@ def test_finetune_starts_from_the_library_skill_and_keeps_its_statistics():
     trainer, state, history = _run(cfg, [skill])
     assert trainer.skills == () and trainer.scheduler_updates == 0 and _finite(history[-1])
     # The observation statistics are the skill's, unchanged by 3 iterations of data.
-    np.testing.assert_allclose(state.normalizer.mean, skill.params["obs_mean"], rtol=1e-6)
-    np.testing.assert_allclose(obs_norm.std(state.normalizer), skill.params["obs_std"], rtol=1e-6)
+    np.testing.assert_allclose(state.normalizer.mean, skill.params.obs_mean, rtol=1e-6)
+    np.testing.assert_allclose(obs_norm.std(state.normalizer), skill.params.obs_std, rtol=1e-6)
     # At the start the new skill is the skill: same mean action on the same observations.
     init = jax.jit(trainer.init)(jax.random.PRNGKey(0))
     obs = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(3), 5)).obs

@@ -71,10 +71,10 @@ def test_checkpoint_written_before_the_pending_field_restores(tmp_path):
     old = _TrainingStateBeforeNStep(**{f.name: getattr(state, f.name)
                                        for f in dataclasses.fields(_TrainingStateBeforeNStep)})
     ck = Checkpointer(str(tmp_path))
-    ck._mgr().save(1, args=ocp.args.Composite(  # what Checkpointer.save wrote then
+    ck.manager().save(1, args=ocp.args.Composite(  # what Checkpointer.save wrote then
         state=ocp.args.StandardSave(old.replace(replay=None)), replay=ocp.args.StandardSave(state.replay),
         host=ocp.args.JsonSave({"iteration": 1, "replay_saved": True})))
-    ck._mgr().wait_until_finished()
+    ck.manager().wait_until_finished()
     restored, _ = ck.restore(abstract_training_state(env, skills, cfg, 0)[0])
     ck.close()
     _assert_same(restored, state)

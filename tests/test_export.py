@@ -16,7 +16,7 @@ import pytest
 from parallel_skills import NewSkillConfig, SchedulerConfig, Skill, TrainConfig, learners
 from parallel_skills import normalization as obs_norm
 from parallel_skills.numpy_policy import NumpyGaussianPolicy, ScheduledPolicy, load_export
-from parallel_skills.train import make_policy_factory
+from parallel_skills.train import TrainedParams, make_policy_factory
 from tasks.manipulation import layout as L
 from training import evaluate
 from training.export import ExportExistsError, write_export
@@ -40,7 +40,7 @@ def _params(obs_size, action_size, num_frozen, config=CONFIG, seed=0):
         return jax.tree.unflatten(tree, [x + 1.0 * jax.random.normal(kk, x.shape) for x, kk in zip(leaves, keys)])
 
     stats = obs_norm.update(obs_norm.init(obs_size), jax.random.normal(k[4], (200, obs_size)) * 0.2 + 0.05)
-    return {"new_skill": perturb(new, k[2]), "scheduler": perturb(sched, k[3]), "normalizer": stats}
+    return TrainedParams(new_skill=perturb(new, k[2]), scheduler=perturb(sched, k[3]), normalizer=stats)
 
 
 def _env(obs_size=L.OBS_SIZE, action_size=L.ACTION_SIZE):
@@ -78,7 +78,7 @@ def test_jax_vs_numpy_forward(exported):
     path, params = exported
     export = load_export(path, obs_size=60, action_size=5)
     make_policy = make_policy_factory(5, CONFIG, len(SKILLS) + 1)
-    stats = params["normalizer"]
+    stats = params.normalizer
     obs = stats.mean + obs_norm.std(stats) * 2.0 * jax.random.normal(jax.random.PRNGKey(7), (256, 60))
     obs = obs.at[:8].multiply(100.0)  # some observations beyond the ±10 clip
     keys = jax.random.split(jax.random.PRNGKey(8), 256)
@@ -93,7 +93,7 @@ def test_jax_vs_numpy_forward(exported):
     np.testing.assert_array_equal(z_np, z_jax)
     assert len(np.unique(z_np[:, 0])) > 1 and len(np.unique(z_np[:, 1])) > 1  # both heads vary
     # Logits too, against the learner's own apply.
-    li, lk = learners.make_scheduler_apply(3, CONFIG.scheduler)(params["scheduler"], obs_norm.normalize(stats, obs))
+    li, lk = learners.make_scheduler_apply(3, CONFIG.scheduler)(params.scheduler, obs_norm.normalize(stats, obs))
     li_np, lk_np = export.scheduler.logits(obs64)
     assert max(np.max(np.abs(li_np - li)), np.max(np.abs(lk_np - lk))) <= 1e-4
 
@@ -153,8 +153,7 @@ def test_evaluate_mujoco_imports_no_jax(exported, tmp_path):
     """The export's new skill and a skill .npz on the classic-MuJoCo twin: NumPy only."""
     path, params = exported
     skill_path = str(tmp_path / "skill.npz")
-    Skill.gaussian_mlp("s", {"policy": params["new_skill"], "obs_mean": params["normalizer"].mean,
-                             "obs_std": obs_norm.std(params["normalizer"])}, 5, (16, 16), obs_size=60).save(skill_path)
+    Skill.gaussian_mlp("s", params.new_skill_params(), 5, (16, 16), obs_size=60).save(skill_path)
     script = (
         "import sys\n"
         "from training.evaluate import main\n"
@@ -174,11 +173,11 @@ def test_evaluate_mujoco_imports_no_jax(exported, tmp_path):
 def test_evaluate_scheduler_runs_scripted_skills(tmp_path, capsys):
     """``export.npz:scheduler`` whose scheduler always picks skill 0 = the scripted skill alone."""
     params = _params(L.OBS_SIZE, L.ACTION_SIZE, len(SKILLS))
-    sched = jax.tree.map(lambda x: x, params["scheduler"])
+    sched = jax.tree.map(lambda x: x, params.scheduler)
     head_i = sched["params"]["head_i"]
     sched["params"]["head_i"] = {"kernel": jnp.zeros_like(head_i["kernel"]),
                                  "bias": jnp.asarray([50.0, 0.0, 0.0])}
-    params = dict(params, scheduler=sched)
+    params = params.replace(scheduler=sched)
     path = write_export(str(tmp_path), params, env=_env(), config=CONFIG, task="reach_green", physics="kinematic",
                         metadata={"skills": SKILLS, "seed": 0, "env_steps": 0})
     common = ["--task", "reach_green", "--physics", "kinematic", "--episodes", "3", "--episode_length", "20"]
@@ -202,7 +201,7 @@ def test_evaluate_scheduler_runs_library_and_skill_dir_skills(tmp_path, capsys):
     import shutil
 
     from training import skill_library
-    from training.run import skill_sources
+    from training.run_files import skill_sources
 
     own = tmp_path / "skills"
     own.mkdir()
@@ -216,12 +215,12 @@ def test_evaluate_scheduler_runs_library_and_skill_dir_skills(tmp_path, capsys):
     params = _params(L.OBS_SIZE, L.ACTION_SIZE, len(SKILLS))
     runs = {}
     for pick in (0, 1):  # a scheduler that always picks skill `pick`
-        sched = jax.tree.map(lambda x: x, params["scheduler"])
+        sched = jax.tree.map(lambda x: x, params.scheduler)
         head_i = sched["params"]["head_i"]
         sched["params"]["head_i"] = {"kernel": jnp.zeros_like(head_i["kernel"]),
                                      "bias": jnp.asarray([50.0 if j == pick else 0.0 for j in range(3)])}
         out = tmp_path / f"run{pick}"
-        runs[pick] = write_export(str(out), dict(params, scheduler=sched), env=_env(), config=CONFIG,
+        runs[pick] = write_export(str(out), params.replace(scheduler=sched), env=_env(), config=CONFIG,
                                   task="reach_green", physics="kinematic",
                                   metadata={"skills": SKILLS, "skill_sources": sources, "seed": 0, "env_steps": 0})
     common = ["--task", "reach_green", "--physics", "mujoco", "--episodes", "3", "--episode_length", "30"]
@@ -289,8 +288,7 @@ def test_evaluate_bad_input(exported, mismatched, tmp_path, capsys, physics):
 def test_numpy_skill_load_checks_sizes(exported, tmp_path):
     _, params = exported
     skill_path = str(tmp_path / "s.npz")
-    Skill.gaussian_mlp("s", {"policy": params["new_skill"], "obs_mean": params["normalizer"].mean,
-                             "obs_std": obs_norm.std(params["normalizer"])}, 5, (16, 16), obs_size=60).save(skill_path)
+    Skill.gaussian_mlp("s", params.new_skill_params(), 5, (16, 16), obs_size=60).save(skill_path)
     with pytest.raises(ValueError, match="expects observations of size 60, the task gives 59"):
         NumpyGaussianPolicy.load(skill_path, obs_size=59)
     meta = json.load(open(tmp_path / "s.json"))

@@ -67,7 +67,7 @@ def _check_layout(obs, qpos, qvel, actions):
     if actions is not None:
         acts = obs[:, E.OBS_ACTIONS].reshape(-1, E.STACK, M.NU)[:, 0]
         np.testing.assert_allclose(acts, actions, atol=1e-6)
-    rot = np.asarray(jax.vmap(E._quat_mat)(jnp.asarray(qpos[:, 3:7], jnp.float32)))
+    rot = np.asarray(jax.vmap(E.quat_mat)(jnp.asarray(qpos[:, 3:7], jnp.float32)))
     heading = rot[:, :2, 0] / np.linalg.norm(rot[:, :2, 0], axis=1, keepdims=True)
     np.testing.assert_allclose(prop[:, M.NU + 3:], -rot[:, 2, :], atol=1e-5)  # gravity, torso frame
 

@@ -132,7 +132,7 @@ def _invariant_rollout(num_envs=32, length=300, noise_prob=0.3):
 def _gripper_in_cube(s):
     cube_cs = jnp.stack([jnp.cos(s.cube_yaw), jnp.sin(s.cube_yaw)], -1)
     held = (jnp.arange(L.NUM_CUBES) == s.held) & (s.held >= 0)
-    return K._gripper_hits_cubes(s.pinch, s.yaw, s.aperture, s.cube_pos, cube_cs, held)
+    return K.gripper_hits_cubes(s.pinch, s.yaw, s.aperture, s.cube_pos, cube_cs, held)
 
 
 @pytest.fixture(scope="session")
@@ -164,11 +164,11 @@ def test_release_onto_cube_stacks_and_off_edge_falls_beside():
     base = K.sample_initial_state(jax.random.PRNGKey(0))
     cube_pos = jnp.array([[0.0, 0.0, 0.07], [0.0, 0.0, 0.02], [0.07, 0.07, 0.02]])
     s = base.replace(cube_pos=cube_pos, cube_yaw=jnp.zeros(3), held=jnp.asarray(-1))
-    out = K._settle(0, s.cube_pos, s.cube_yaw)
+    out = K.settle(0, s.cube_pos, s.cube_yaw)
     np.testing.assert_allclose(out[0], [0.0, 0.0, 0.06], atol=1e-6)
     # Released mostly beside yellow (centre off its footprint): it lands on the floor, no overlap.
     cube_pos = cube_pos.at[0].set(jnp.array([0.03, 0.0, 0.07]))
-    out = K._settle(0, cube_pos, jnp.zeros(3))
+    out = K.settle(0, cube_pos, jnp.zeros(3))
     assert float(out[0, 2]) == pytest.approx(L.CUBE_HALF)
     assert not bool(K.cubes_interpenetrate(s.replace(cube_pos=out)))
 

@@ -25,7 +25,7 @@ def test_scheduler_return_rises():
     env = tasks.make("lift_arm_closed", episode_length=EPISODE)
     skills = [Skill.from_fn(n, scripted.get(n)) for n in ("reach_green", "lift_arm_open", "lift_arm_closed")]
     trainer = make_trainer(env, skills, CFG)
-    _, eval_sched, _ = make_evaluators(env, trainer, CFG.eval_episodes, EPISODE)
+    eval_sched = make_evaluators(env, trainer, CFG.eval_episodes, EPISODE).scheduler
     state = jax.jit(trainer.init)(jax.random.PRNGKey(0))
     iteration = jax.jit(trainer.iteration)
 

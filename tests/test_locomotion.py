@@ -145,7 +145,7 @@ def test_prone_fraction_and_bank():
     np.testing.assert_allclose(np.asarray(qpos[standing][:, 7:]), np.tile(lay.stand_pose, (len(standing), 1)), atol=1e-6)
     np.testing.assert_allclose(np.asarray(hold[standing]), np.tile(lay.stand_pose, (len(standing), 1)), atol=1e-6)
     # Yaw is uniform: mean heading ≈ 0.
-    up = jax.vmap(lambda q: E._quat_mat(q[3:7])[:2, 0])(qpos[standing])
+    up = jax.vmap(lambda q: E.quat_mat(q[3:7])[:2, 0])(qpos[standing])
     assert np.linalg.norm(np.mean(np.asarray(up), axis=0)) < 0.1
     assert all(np.asarray(S.StartSampler(0.0).sample(jax.random.PRNGKey(k))[2]) == 0 for k in range(3))
 
@@ -220,11 +220,11 @@ def test_fixed_goal_speed():
     """``goal_speed=`` fixes the target speed of every goal drawn (skill evaluation at the walking
     command); other values are a one-line error."""
     env = tasks.make("op3_walk", physics="mujoco", goal_speed=0.7, num_threads=1)
-    d, speed, left = jax.vmap(env._sample_goal)(jax.random.split(jax.random.PRNGKey(3), 64))
+    d, speed, left = jax.vmap(env.sample_goal)(jax.random.split(jax.random.PRNGKey(3), 64))
     np.testing.assert_array_equal(np.asarray(speed), np.float32(0.7))
     np.testing.assert_allclose(np.linalg.norm(np.asarray(d), axis=1), 1.0, atol=1e-6)
     free = tasks.make("op3_walk", physics="mujoco", num_threads=1)
-    _, speed, _ = jax.vmap(free._sample_goal)(jax.random.split(jax.random.PRNGKey(3), 64))
+    _, speed, _ = jax.vmap(free.sample_goal)(jax.random.split(jax.random.PRNGKey(3), 64))
     assert 0 < float(jnp.mean(speed > 0)) < 1  # both speeds without the override
     with pytest.raises(ValueError, match="goal_speed must be one of"):
         tasks.make("op3_walk", physics="mujoco", goal_speed=0.5)

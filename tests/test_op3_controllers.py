@@ -63,7 +63,7 @@ def test_walk_phase_advances_from_previous_action():
 
 def test_getup_phase_machine():
     fn = C.getup_controller(C.initial_params("getup"))
-    decode = lambda a: C._decode_fsm(jnp.asarray(a))  # noqa: E731
+    decode = lambda a: C.decode_fsm(jnp.asarray(a))  # noqa: E731
     # no valid code: lying on the front starts the front sequence, on the back the back sequence
     assert int(decode(fn(_obs(np.full(C.NU, 0.5), gravity=(1.0, 0, 0))))[0]) == 1
     assert int(decode(fn(_obs(None, gravity=(-1.0, 0, 0))))[0]) == 1 + C.K_FRONT
@@ -103,7 +103,7 @@ def test_few_env_steps_mujoco():
     for _ in range(4):
         s = step(s)
     assert bool(jnp.all(jnp.isfinite(s.obs))) and float(jnp.sum(s.info["nan_reset"])) == 0
-    phase, _ = jax.vmap(lambda o: C._decode_fsm(C.prev_action(o)))(s.obs)
+    phase, _ = jax.vmap(lambda o: C.decode_fsm(C.prev_action(o)))(s.obs)
     assert bool(jnp.all(phase >= 1))  # lying: in a get-up sequence
 
 

@@ -109,7 +109,7 @@ def test_plots_each_method_at_its_best_setting_and_the_ablations(tmp_path, capsy
     variants = [parse_variant(x, ("skills", "scratch")) for x in
                 ("skills", "scratch", "scratch[new_skill.mpo_alpha=0]", "scratch[new_skill.mpo_alpha=0.5]", "k1",
                  "distractors")]
-    scores = {v.name: paper._score(paper._variant_runs(out, "lift", v, [0, 1])[1], 400) for v in variants}
+    scores = {v.name: paper.score(paper.variant_runs(out, "lift", v, [0, 1])[1], 400) for v in variants}
     best = paper.best_settings(variants, scores)
     # Ties at the budget (0.3) go to the better curve; ablations and skill sets (distractors, above
     # SkillS here) are never a method's best setting.

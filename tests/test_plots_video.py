@@ -121,7 +121,7 @@ def test_acting_step_counts_skill_runs():
 
 def _write_csv(run_dir, rows, fields=None):
     """metrics.csv exactly as training.run writes it (same header and row formatting)."""
-    from training.run import CSV_FIELDS
+    from training.run_files import CSV_FIELDS
 
     fields = fields or CSV_FIELDS
     os.makedirs(run_dir, exist_ok=True)
@@ -199,7 +199,7 @@ def test_plots_from_synthetic_metrics_csv(tmp_path, capsys):
 def test_plots_of_a_run_without_skill_runs_or_config(tmp_path):
     """A metrics.csv of a run from before skill_runs was logged (and no config.json) still plots."""
     from training import plot
-    from training.run import CSV_FIELDS
+    from training.run_files import CSV_FIELDS
 
     old = [f for f in CSV_FIELDS if f != "skill_runs"]
     _write_csv(str(tmp_path / "old"), [{"env_steps": 100 * e, "eval/new_skill_success": 0.1 * e,
@@ -330,9 +330,9 @@ def test_qpos_from_observations_matches_the_scene_layout():
 
 @pytest.mark.parametrize("fmt", ["gif", "mp4"])
 def test_video_writes_a_file(tmp_path, fmt):
-    from training.video import VideoError, _ffmpeg_available, qpos_from_observations, write_video
+    from training.video import VideoError, ffmpeg_available, qpos_from_observations, write_video
 
-    if fmt == "mp4" and not _ffmpeg_available():
+    if fmt == "mp4" and not ffmpeg_available():
         pytest.skip("mp4 needs imageio + imageio-ffmpeg (the [video] extra); GIF is the fallback")
     qpos = qpos_from_observations(np.repeat(_kinematic_observations(), 2, axis=0))
     try:
@@ -361,7 +361,8 @@ TINY = {"num_envs": 4, "unroll_length": 5, "replay_size": 2000, "eval_episodes":
 
 
 def test_run_writes_logs_plots_and_video(tmp_path, capsys):
-    from training.run import CSV_FIELDS, main
+    from training.run import main
+    from training.run_files import CSV_FIELDS
 
     cfg = tmp_path / "tiny.json"
     cfg.write_text(json.dumps(TINY))

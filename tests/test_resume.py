@@ -65,7 +65,7 @@ def _final_state(run):
     import orbax.checkpoint as ocp
 
     step = ck.latest_step()
-    r = ck._mgr().restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(),
+    r = ck.manager().restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(),
                                                         replay=ocp.args.StandardRestore(),
                                                         host=ocp.args.JsonRestore()))
     host = dict(r.host)
@@ -229,3 +229,78 @@ def test_a_run_in_use_by_another_process_is_refused(uninterrupted, capsys):
     finally:
         holder.kill()
         holder.wait()
+
+
+def _tree_bytes(root):
+    """{relative path: bytes} of every file and directory under ``root`` (a byte-identical check)."""
+    out = {}
+    for d, _, files in os.walk(root):
+        out[os.path.relpath(d, root) + "/"] = None
+        for n in files:
+            p = os.path.join(d, n)
+            with open(p, "rb") as f:
+                out[os.path.relpath(p, root)] = f.read()
+    return out
+
+
+def _truncate_files(root, only_data: bool = False):
+    """Cut every file under ``root`` (``only_data``: the array data of its items, under d/) to half."""
+    cut = 0
+    for d, _, files in os.walk(root):
+        if only_data and os.path.basename(d) != "d":
+            continue
+        for n in files:
+            p = os.path.join(d, n)
+            with open(p, "r+b") as f:
+                f.truncate(os.path.getsize(p) // 2)
+            cut += 1
+    assert cut, root
+
+
+def _killed_before_export(tmp, run_a, name):
+    """A copy of the finished run as a run killed after its last checkpoint, before its export."""
+    run = os.path.join(tmp, name)
+    shutil.copytree(run_a, run)
+    for n in ("export.npz", "export.json"):
+        os.remove(os.path.join(run, n))
+    return run
+
+
+def test_resume_past_a_truncated_latest_checkpoint(uninterrupted, capsys):
+    """The latest checkpoint's files truncated: --resume says so in one line, continues from the
+    previous one and ends as the uninterrupted run (issue 31, item 6); the unreadable checkpoint is
+    kept aside, not deleted."""
+    tmp, run_a = uninterrupted
+    run_t = _killed_before_export(tmp, run_a, "t")
+    ckpt_dir = os.path.join(run_t, CHECKPOINT_SUBDIR)
+    _truncate_files(os.path.join(ckpt_dir, str(ITERATIONS)))
+    capsys.readouterr()
+    main(["--resume", "--out", run_t])
+    captured = capsys.readouterr()
+    warnings = [line for line in captured.err.splitlines() if line.startswith("warning:")]
+    assert len(warnings) == 1 and "does not restore" in warnings[0], captured.err
+    assert f"from its checkpoint at iteration {ITERATIONS - 2}" in captured.out
+    assert _rows(run_t) == _rows(run_a)
+    _assert_same_arrays(_npz(os.path.join(run_a, "export.npz")), _npz(os.path.join(run_t, "export.npz")))
+    assert Checkpointer(run_t).steps() == [ITERATIONS - 2, ITERATIONS]
+    assert os.listdir(os.path.join(run_t, "unrestorable_checkpoints")) == [str(ITERATIONS)]
+
+
+def test_resume_with_every_checkpoint_corrupt_is_refused_and_changes_nothing(uninterrupted, capsys):
+    """No checkpoint restores: one line, exit 2, the run directory byte-identical."""
+    import gc
+
+    from cli_checks import one_line_error
+
+    tmp, run_a = uninterrupted
+    run_x = _killed_before_export(tmp, run_a, "x")
+    ckpt_dir = os.path.join(run_x, CHECKPOINT_SUBDIR)
+    _truncate_files(os.path.join(ckpt_dir, str(ITERATIONS)))  # (host JSON and all)
+    _truncate_files(os.path.join(ckpt_dir, str(ITERATIONS - 2)), only_data=True)  # (the arrays alone)
+    before = _tree_bytes(run_x)
+    gc.collect()
+    capsys.readouterr()
+    line = one_line_error(lambda: main(["--resume", "--out", run_x]), capsys, "cannot resume",
+                          "restores", f"{ITERATIONS - 2}")
+    assert "does not match" not in line, line
+    assert _tree_bytes(run_x) == before

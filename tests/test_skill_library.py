@@ -150,7 +150,7 @@ def test_many_useful_loads_from_the_library_and_stacks():
     assert [s.name for s in skills] == names
     assert all(s.metadata["source"] == "library" for s in skills)
     s_set = SkillSet(skills)
-    assert len(s_set._stacked) == 1 and not s_set._single  # one vmap over the six networks
+    assert len(s_set.vmapped_groups) == 1 and not s_set.unstacked  # one vmap over the six networks
     obs = jax.vmap(tasks.make("lift").reset)(jax.random.split(jax.random.PRNGKey(0), 3)).obs
     acts = s_set.frozen_actions(obs, jax.random.PRNGKey(1))
     assert acts.shape == (6, 3, L.ACTION_SIZE) and bool(jnp.all(jnp.abs(acts) <= 1.0))

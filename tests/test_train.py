@@ -308,7 +308,7 @@ def test_vmapped_seeds_match_single_runs():
     for a, b in zip(jax.tree.leaves(params_v[1]), jax.tree.leaves(params_1)):
         np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
     # The two seeds differ.
-    assert not np.allclose(params_v[0]["new_skill"]["params"]["head"]["kernel"],
-                           params_v[1]["new_skill"]["params"]["head"]["kernel"])
+    assert not np.allclose(params_v[0].new_skill["params"]["head"]["kernel"],
+                           params_v[1].new_skill["params"]["head"]["kernel"])
     with pytest.raises(ValueError, match="distinct"):
         train_seeds(env, _skills(), seeds=[1, 1], num_timesteps=10, config=cfg)

@@ -18,7 +18,7 @@ sys.path.insert(0, ROOT)
 
 import tasks  # noqa: E402
 from parallel_skills import NewSkillConfig, SchedulerConfig, Skill, TrainConfig, sharding  # noqa: E402
-from parallel_skills.train import _compiled, make_trainer  # noqa: E402
+from parallel_skills.train import compile_trainer, make_trainer  # noqa: E402
 from tasks.manipulation import scripted  # noqa: E402
 from training.checkpointing import Checkpointer  # noqa: E402
 
@@ -36,7 +36,7 @@ _COMPILED = {}
 
 def run(mesh, iterations, state=None):
     if mesh not in _COMPILED:  # (one trainer and one compile per mesh)
-        _COMPILED[mesh] = _compiled(make_trainer(ENV, SKILLS, CONFIG, mesh), mesh, seed_axis=False)
+        _COMPILED[mesh] = compile_trainer(make_trainer(ENV, SKILLS, CONFIG, mesh), mesh, seed_axis=False)
     init, iteration, place = _COMPILED[mesh]
     state = init(jax.random.PRNGKey(0)) if state is None else place(state)
     metrics = []

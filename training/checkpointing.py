@@ -41,6 +41,16 @@ class CheckpointError(ValueError):
     """A checkpoint that cannot be restored into this run (missing, or not matching its state)."""
 
 
+class CheckpointUnreadable(CheckpointError):
+    """A checkpoint whose files do not restore (truncated or corrupt): its structure is not the
+    cause, so an earlier checkpoint of the same run may restore (``Checkpointer.restore_latest``)."""
+
+
+def _first_line(e: Exception) -> str:
+    text = str(e).strip()
+    return f"{type(e).__name__}: {text.splitlines()[0][:200] if text else ''}".rstrip(": ")
+
+
 def abstract_training_state(environment, skills, config, seed: int):
     """``(abstract TrainingState, fresh_replay())`` of the run ``train(environment, skills,
     config=config, seed=seed)`` would start: shapes / dtypes / structure to restore into (nothing
@@ -143,7 +153,8 @@ class Checkpointer:
         self.max_to_keep = int(max_to_keep)
         self._manager = None
 
-    def _mgr(self):
+    def manager(self):
+        """The orbax ``CheckpointManager`` of the directory (created on first use)."""
         if self._manager is None:
             import orbax.checkpoint as ocp
 
@@ -156,7 +167,7 @@ class Checkpointer:
         """Iterations of the complete checkpoints on disk, ascending (unfinished saves excluded)."""
         if not os.path.isdir(self.directory):
             return []
-        return sorted(int(s) for s in self._mgr().all_steps())
+        return sorted(int(s) for s in self.manager().all_steps())
 
     def latest_step(self) -> Optional[int]:
         steps = self.steps()
@@ -170,7 +181,7 @@ class Checkpointer:
         items = {"state": ocp.args.StandardSave(_state_tree(state)), "host": ocp.args.JsonSave(host)}
         if self.save_replay:
             items["replay"] = ocp.args.StandardSave(state.replay)
-        mgr = self._mgr()
+        mgr = self.manager()
         mgr.save(int(host["iteration"]), args=ocp.args.Composite(**items))
         mgr.wait_until_finished()
 
@@ -196,26 +207,30 @@ class Checkpointer:
         step = self.latest_step() if step is None else int(step)
         if step is None:
             raise CheckpointError(f"no checkpoint in {self.directory}")
-        mgr = self._mgr()
+        mgr = self.manager()
+        where = os.path.join(self.directory, str(step))
         try:
             host = mgr.restore(step, args=ocp.args.Composite(host=ocp.args.JsonRestore())).host
-            state_sh = _state_tree(shardings) if shardings is not None else None
-            items = {"state": ocp.args.StandardRestore(target(_state_tree(abstract_state), state_sh))}
-            if host.get("replay_saved", True):
-                items["replay"] = ocp.args.StandardRestore(
-                    target(abstract_state.replay, None if shardings is None else shardings.replay))
-            for name, item in items.items():
-                why = _mismatch(os.path.join(self.directory, str(step), name), item.item)
-                if why:
-                    raise CheckpointError(f"checkpoint {os.path.join(self.directory, str(step))} does not match "
-                                          f"this run's training state ({why})")
+        except Exception as e:  # noqa: BLE001 - orbax raises several types for unreadable files
+            raise CheckpointUnreadable(f"checkpoint {where} does not restore (host: {_first_line(e)})") from None
+        if not isinstance(host, dict):
+            raise CheckpointUnreadable(f"checkpoint {where} does not restore (host: not a JSON object)")
+        state_sh = _state_tree(shardings) if shardings is not None else None
+        items = {"state": ocp.args.StandardRestore(target(_state_tree(abstract_state), state_sh))}
+        if host.get("replay_saved", True):
+            items["replay"] = ocp.args.StandardRestore(
+                target(abstract_state.replay, None if shardings is None else shardings.replay))
+        for name, item in items.items():
+            try:
+                why = _mismatch(os.path.join(where, name), item.item)
+            except Exception as e:  # noqa: BLE001 - its metadata does not read
+                raise CheckpointUnreadable(f"checkpoint {where} does not restore ({name}: {_first_line(e)})") from None
+            if why:
+                raise CheckpointError(f"checkpoint {where} does not match this run's training state ({why})")
+        try:
             restored = mgr.restore(step, args=ocp.args.Composite(**items))
-        except CheckpointError:
-            raise
-        except Exception as e:  # orbax raises several types for a tree / shape mismatch
-            first = str(e).strip().splitlines()[0] if str(e).strip() else ""
-            raise CheckpointError(f"checkpoint {os.path.join(self.directory, str(step))} does not match this "
-                                  f"run's training state ({type(e).__name__}: {first[:200]})") from None
+        except Exception as e:  # noqa: BLE001 - the structure matched: the files are truncated or corrupt
+            raise CheckpointUnreadable(f"checkpoint {where} does not restore ({_first_line(e)})") from None
         fields = _like_fresh(restored.state, _state_tree(abstract_state), state_sh if shardings is not None else None)
         state = abstract_state.replace(**fields)
         if host.get("replay_saved", True):
@@ -229,6 +244,29 @@ class Checkpointer:
         if int(jax.device_get(state.iteration)) != step:
             raise CheckpointError(f"checkpoint {step} holds the state of iteration {int(state.iteration)}")
         return state, host
+
+    def restore_latest(self, abstract_state, fresh_replay: Optional[Callable] = None, steps=None, shardings=None,
+                       on_skip: Optional[Callable[[int, str], None]] = None):
+        """``(TrainingState, host_state)`` of the latest checkpoint of ``steps`` (default: all on
+        disk) that restores: one whose files do not (``CheckpointUnreadable``) is skipped for the
+        one before it, and reported with ``on_skip(step, why)`` once an earlier one restored.
+        Raises CheckpointError when none restores (one line: each checkpoint's reason), or at
+        once when one does not match the run (an earlier one would not either). Reads only."""
+        steps = sorted(self.steps() if steps is None else steps, reverse=True)
+        if not steps:
+            raise CheckpointError(f"no checkpoint in {self.directory}")
+        skipped = []
+        for step in steps:
+            try:
+                restored = self.restore(abstract_state, fresh_replay, step=step, shardings=shardings)
+            except CheckpointUnreadable as e:
+                skipped.append((step, str(e)))
+                continue
+            for s, why in skipped if on_skip is not None else ():
+                on_skip(s, why)
+            return restored
+        reasons = [why for _, why in skipped]
+        raise CheckpointError(f"no checkpoint in {self.directory} restores: " + "; ".join(reasons))
 
     def close(self) -> None:
         if self._manager is not None:

@@ -248,9 +248,9 @@ def jax_new_skill(export):
     """An export's new skill as a JAX ``Skill`` (mean action)."""
     import jax.numpy as jnp
 
-    from parallel_skills.skills import Skill, _unflatten
+    from parallel_skills.skills import Skill, unflatten_params
 
-    params = _unflatten({k: jnp.asarray(v, jnp.float32) for k, v in export.new_skill.a.items()})
+    params = unflatten_params({k: jnp.asarray(v, jnp.float32) for k, v in export.new_skill.a.items()})
     return Skill.gaussian_mlp(export.new_skill_name, params, export.action_size, export.new_skill.hidden)
 
 

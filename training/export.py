@@ -57,10 +57,9 @@ class ExportExistsError(FileExistsError, ValueError):
 
 def _section(policy_params, stats) -> dict:
     """{"policy": flax variables, "obs_mean", "obs_std"} flattened as ``Skill.save`` does."""
-    from parallel_skills.normalization import std as norm_std
-    from parallel_skills.skills import _flatten
+    from parallel_skills.skills import GaussianSkillParams, flatten_params
 
-    return _flatten({"policy": policy_params, "obs_mean": stats.mean, "obs_std": norm_std(stats)})
+    return flatten_params(GaussianSkillParams.from_normalizer(policy_params, stats).as_dict())
 
 
 def _hidden(flat: dict) -> list[int]:
@@ -108,7 +107,7 @@ def _write_tmp(out_dir: str, write) -> str:
 def write_export(out_dir, params, *, env, config, task, physics, metadata) -> str:
     """Write ``out_dir/export.npz`` + ``out_dir/export.json``; return the .npz path.
 
-    params: what ``parallel_skills.train`` returns: {"new_skill", "scheduler", "normalizer"}.
+    params: what ``parallel_skills.train`` returns (``train.TrainedParams``).
     env: the trained env (``observation_size``, ``action_size``). config: the run's *resolved*
     ``TrainConfig`` (hidden sizes, skill lengths K, min_std, method; checked against ``params``).
     task, physics: names recorded for the evaluator. metadata: a JSON-able dict that must hold
@@ -128,8 +127,8 @@ def write_export(out_dir, params, *, env, config, task, physics, metadata) -> st
     obs_size, action_size = int(env.observation_size), int(env.action_size)
     sc, nc = config.scheduler, config.new_skill
 
-    new = _section(params["new_skill"], params["normalizer"])
-    sched = _section(params["scheduler"], params["normalizer"])
+    new = _section(params.new_skill, params.normalizer)
+    sched = _section(params.scheduler, params.normalizer)
     for name, flat, hidden in (("new_skill", new, nc.hidden), ("scheduler", sched, sc.hidden)):
         if _hidden(flat) != [int(h) for h in hidden]:
             raise ValueError(f"{name} parameters have hidden sizes {_hidden(flat)}, the config says {list(hidden)}")

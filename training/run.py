@@ -23,7 +23,6 @@ Bad input is reported as one line on stderr with exit code 2, before anything is
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import io
 import json
@@ -31,11 +30,12 @@ import os
 import sys
 import time
 
-from training import rundir
+from parallel_skills import methods
+from parallel_skills.config import RECIPES
+from training import rundir, run_files
 from training.cli import Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int
-from training.logging_utils import Progress, TensorBoardLogger, format_row, release_free_memory, resident_mb
+from training.logging_utils import Progress
 from training.rundir import RunRecord
-from parallel_skills.config import RECIPES, TrainConfig
 
 # CPU: the README quickstart must end within 10 minutes on 2 cores (kinematic lift, CPU recipe,
 # seed 0: 0.84 at 218k and 256k; other seeds are slower; README, docs/scaling.md).
@@ -44,19 +44,6 @@ DEFAULT_TIMESTEPS = {"cpu": 256_000, "accelerator": 20_000_000}
 # that conflict with the run's config.json).
 DEFAULTS = dict(task="lift", physics="kinematic", seed=0, skills="useful", skill_source="scripted", method="skills",
                 eval_episodes=32)
-METHODS = TrainConfig.METHODS
-CSV_FIELDS = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skill_return", "eval/scheduler_success",
-              "eval/scheduler_return", "episode_success", "episode_return", "new_skill_selection_rate",
-              "scheduler/critic_loss", "new_skill/critic_loss", "scheduler/policy_entropy_i", "skill_histogram",
-              "length_histogram", "skill_steps", "skill_runs", "scheduler/q_mean", "new_skill/q_mean",
-              "new_skill/crr_weight_mean", "new_skill/policy_log_std_mean", "rss_mb",
-              # Scheduler diagnostics (docs/scheduler.md): as it collects, its decisions, its replay.
-              "eval/scheduler_sampled_success", "eval/scheduler_sampled_return", "eval/scheduler_discounted_return",
-              "eval/scheduler_value_at_reset", "decision_entropy_i", "decision_entropy_k", "skill_share",
-              "length_share", "replay_rewarded_fraction", "scheduler/policy_entropy_k"]
-# Without --checkpoint_every: checkpoint at evaluations, but at most once a minute (a lift run on a
-# CPU evaluates every ~10 s; a checkpoint with its replay takes ~1 s there).
-CHECKPOINT_MIN_SECONDS = 60.0
 DEFAULT_CACHE_DIR = os.path.join(os.path.expanduser("~"), ".cache", "parallel_skills_jax")
 
 
@@ -87,10 +74,8 @@ def build_parser():
     p.add_argument("--skill_dir", default=None,
                    help="directory of your own skills (NAME.npz + NAME.json, as Skill.save writes them): a skill of "
                         "the set found there is loaded from it instead of --skill_source")
-    p.add_argument("--method", default=None, choices=list(METHODS),
-                   help="skills (SkillS, default); the new skill alone: scratch, finetune (from --finetune_from), "
-                        "kl_reg / dagger (the skill set as its prior / teacher); rhpo (a mixture of the skills and "
-                        "the new skill); README \"Baselines\"")
+    p.add_argument("--method", default=None, choices=list(methods.names()),
+                   help="; ".join(f"{m.name}: {m.help}" for m in methods.all_methods()) + "; README \"Baselines\"")
     p.add_argument("--finetune_from", default=None,
                    help="--method finetune: the network skill the new skill starts from (library name, or one in "
                         "--skill_dir); default the task's last useful skill, from the library")
@@ -206,19 +191,21 @@ def prepare_new(args, argv, num_devices: int = 1, write: bool = True):
              "eval_episodes": args.eval_episodes}
     cfg = dataclasses.replace(cfg, **{k: v for k, v in flags.items() if v is not None})
     method = cfg.method
-    if method not in METHODS:  # (TrainConfig validates it too)
-        raise UsageError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
-    if args.finetune_from is not None and method != "finetune":
-        raise UsageError(f"--finetune_from is for --method finetune, not {method}")
-    if method == "scratch":
-        names = []
-    elif method == "finetune":
+    if method not in methods.names():  # (TrainConfig validates it too)
+        raise UsageError(f"unknown method {method!r}; valid: {', '.join(methods.names())}")
+    spec = methods.get(method)
+    if args.finetune_from is not None and not spec.starts_from_skill:
+        starting = " / ".join(m.name for m in methods.all_methods() if m.starts_from_skill)
+        raise UsageError(f"--finetune_from is for --method {starting}, not {method}")
+    if spec.starts_from_skill:
         if args.skill_source == "scripted" and not args.skill_dir:
-            raise UsageError("--method finetune starts from a network skill: use --skill_source library (the "
-                             "default for finetune) or --skill_dir, not scripted controllers")
+            raise UsageError(f"--method {method} starts from a network skill: use --skill_source library (the "
+                             f"default for {method}) or --skill_dir, not scripted controllers")
         if args.skill_source is None:
             a["skill_source"] = "library"
         names = [args.finetune_from or skill_library.skill_names(a["task"], "useful")[-1]]
+    elif not spec.frozen_skills:
+        names = []
     else:
         names = skill_library.skill_names(a["task"], a["skills"])
 
@@ -250,7 +237,7 @@ def prepare_new(args, argv, num_devices: int = 1, write: bool = True):
     skill_dir = os.path.abspath(args.skill_dir) if args.skill_dir else None
     loaded = skill_library.load_skills(names, a["physics"], a["skill_source"], env.observation_size,
                                        env.action_size, skill_dir=skill_dir)  # exist, fit (ValueError: one line)
-    if method == "finetune":
+    if spec.starts_from_skill:
         from parallel_skills.train import finetune_source
 
         finetune_source(loaded, resolved)  # a network of the new skill's sizes
@@ -293,13 +280,13 @@ def prepare_resume(args, num_devices: int = 1):
     run = rundir.read_record(out, "cannot resume")
     resolved = run.config(f"{cfg_path} train_config")
 
+    starts_from_skill = methods.get(resolved.method).starts_from_skill
     given = {"task": (args.task, run.task), "physics": (args.physics, run.physics),
              "skills": (args.skills, run.skill_set), "skill_source": (args.skill_source, run.skill_source),
              "skill_dir": (os.path.abspath(args.skill_dir) if args.skill_dir else None, run.skill_dir),
              "seed": (args.seed, run.seed),
              "method": (args.method, resolved.method), "recipe": (args.recipe, resolved.recipe),
-             "finetune_from": (args.finetune_from, run.skills[0] if resolved.method == "finetune" and run.skills
-                               else None),
+             "finetune_from": (args.finetune_from, run.skills[0] if starts_from_skill and run.skills else None),
              "num_envs": (args.num_envs, resolved.num_envs), "episode_length": (args.episode_length, run.episode_length),
              "eval_every": (args.eval_every, resolved.eval_every),
              "eval_episodes": (args.eval_episodes, resolved.eval_episodes),
@@ -347,41 +334,6 @@ def prepare_resume(args, num_devices: int = 1):
 
 
 # ----------------------------------------------------------------------------- running
-
-def _csv_header(path):
-    with open(path, newline="") as f:
-        return next(csv.reader(f), None)
-
-
-def _write_plots(out):
-    """DIR/curves.png and DIR/skill_usage.png; a failure is reported, not fatal (the run is saved)."""
-    try:
-        from training.plot import write_run_plots
-
-        paths = write_run_plots(out)
-    except ImportError as e:
-        print(f"plots skipped: {e} (pip install 'parallel-skills[plots]')", file=sys.stderr)
-    except Exception as e:  # noqa: BLE001 - plots are a by-product: never lose a finished run to them
-        print(f"plots skipped: {type(e).__name__}: {e}", file=sys.stderr)
-    else:
-        print(f"plots saved: {', '.join(paths)}")
-
-
-def _write_video(out, env, make_policy, params, seed, episode_length):
-    """DIR/new_skill.mp4 (or .gif): one episode of the new skill alone; failures are reported."""
-    import jax
-
-    from training.video import VideoError, record_policy
-
-    try:
-        path = record_policy(env, make_policy(params, "new_skill"), os.path.join(out, "new_skill"),
-                             key=jax.random.PRNGKey(seed + 20_000), episode_length=episode_length)
-    except VideoError as e:
-        print(f"video skipped: {e}", file=sys.stderr)
-    except Exception as e:  # noqa: BLE001 - as for plots: the trained run is what matters
-        print(f"video skipped: {type(e).__name__}: {e}", file=sys.stderr)
-    else:
-        print(f"video saved: {path}")
 
 
 SEEDS_JSON = "seeds.json"  # OUT/seeds.json of a --seeds group: {"seeds", "runs", "command"}
@@ -485,7 +437,7 @@ def main(argv=None):
         main_guard(lambda: rundir.lock(out))
     try:
         _barrier(dist, "run directory ready")  # (process 0 created it)
-        _train(out, run, resolved, env, resume=args.resume, video=args.video or run.video, mesh=mesh, dist=dist,
+        _train([out], [run], resolved, env, resume=args.resume, video=args.video or run.video, mesh=mesh, dist=dist,
                extend_command=_command(argv) if args.resume else None)
     finally:
         if dist.primary:
@@ -501,131 +453,11 @@ def _main_seeds(args, argv, mesh=None):
         for out in outs:
             main_guard(lambda o=out: rundir.lock(o))
             locked.append(out)
-        _train_seeds(outs, runs, resolved, env, resume=args.resume, video=args.video or runs[0].video, mesh=mesh,
-                     extend_command=_command(argv) if args.resume else None)
+        _train(outs, runs, resolved, env, resume=args.resume, video=args.video or runs[0].video, mesh=mesh,
+               extend_command=_command(argv) if args.resume else None, grouped=True)
     finally:
         for out in locked:
             rundir.unlock(out)
-
-
-def skill_sources(skills, physics: str) -> list[dict]:
-    """Where each frozen skill came from, for the export (``training.evaluate ...:scheduler`` runs the
-    same skills): ``{"name", "source": "scripted"}``; ``{"name", "source": "library", "library":
-    checkpoints/ subdirectory, "sha256"}`` (no machine path: resolved in the repository at
-    evaluation); ``{"name", "source": "skill_dir", "path": as given, "sha256"}``."""
-    from training.skill_library import library_dir
-    from training.export import file_sha256
-
-    out = []
-    for s in skills:
-        src = s.metadata.get("source", "scripted")
-        entry = {"name": s.name, "source": src}
-        if src == "library":
-            entry.update(library=library_dir(physics), sha256=file_sha256(s.metadata["path"]))
-        elif src == "skill_dir":
-            entry.update(path=s.metadata["path"], sha256=file_sha256(s.metadata["path"]))
-        out.append(entry)
-    return out
-
-
-def _restore(out, ckpt, csv_path, env, skills, resolved, seed: int, step=None, mesh=None, primary: bool = True):
-    """The checkpointed (state, host state) of a resumed run (checkpoint ``step``, default the
-    latest), read only (``_resume_files`` then updates the run directory, on the primary process
-    alone). ``mesh``: the state is restored onto it, each process reading its own shards."""
-    from training.checkpointing import CheckpointError, abstract_training_state
-
-    abstract, fresh_replay = abstract_training_state(env, skills, resolved, seed)
-    shardings = None
-    if mesh is not None:
-        from parallel_skills.sharding import state_shardings
-
-        shardings = state_shardings(abstract, mesh, resolved.num_envs)
-    try:
-        state, host = ckpt.restore(abstract, fresh_replay, step=step, shardings=shardings)
-    except CheckpointError as e:
-        raise UsageError(f"cannot resume: {e}") from None
-    if not all(k in host for k in ("csv_bytes", "csv_rows", "env_steps")):
-        raise UsageError(f"cannot resume: the checkpoint in {ckpt.directory} was not written by training.run")
-    if not primary:
-        return state, host
-    size = os.path.getsize(csv_path) if os.path.isfile(csv_path) else -1
-    if size < int(host["csv_bytes"]):
-        raise UsageError(f"cannot resume: {csv_path} is {'missing' if size < 0 else f'{size} bytes'}, "
-                         f"the checkpoint covers its first {host['csv_bytes']} bytes")
-    return state, host
-
-
-def _resume_files(out, csv_path, host, run=None, extend_command=None):
-    """After a successful restore (nothing is written before one): record an extension
-    (``rundir.extend``: config.json, the finished outputs kept in before_extension_N) when
-    ``extend_command`` is given, then cut metrics.csv back to the rows the checkpoint covers and
-    remove a half-written export."""
-    if extend_command is not None:
-        rundir.extend(out, run, extend_command)
-    with open(csv_path, "r+b") as f:  # drop the rows written after the checkpoint
-        f.truncate(int(host["csv_bytes"]))
-    stale = os.path.join(out, "export.npz")  # an export killed before its export.json: redone at the end
-    if os.path.exists(stale):
-        os.remove(stale)
-    print(f"resuming {out} from its checkpoint at iteration {host['iteration']} "
-          f"({host['env_steps']:,} env steps, {host['csv_rows']} metrics rows)"
-          + ("" if host.get("replay_saved", True) else "; the checkpoint holds no replay: "
-             "the buffer starts empty"))
-
-
-class _RunFiles:
-    """One run directory's files while it trains: metrics.csv rows, TensorBoard events and
-    checkpoints (``progress`` and ``checkpoint`` are what ``train`` calls back)."""
-
-    def __init__(self, out, run, resolved, resume: bool, host_state, bar, prefix: str = "", primary: bool = True):
-        from training.checkpointing import Checkpointer
-
-        self.out, self.bar, self.prefix, self.primary = out, bar, prefix, primary
-        self.ckpt = Checkpointer(out, save_replay=run.replay_checkpoint)
-        csv_path = os.path.join(out, "metrics.csv")
-        start_steps = int(host_state["env_steps"]) if host_state else 0
-        self.csv_rows = int(host_state["csv_rows"]) if host_state else 0
-        self.f = self.tb = None
-        if not primary:  # another process of a multi-process run: checkpoints only (orbax writes them together)
-            return
-        # A resumed run keeps the columns its metrics.csv was started with (runs from older versions).
-        header = _csv_header(csv_path) if resume else None
-        self.fields = header or CSV_FIELDS
-        # TensorBoard: a resume opens a new event file that purges the steps past the checkpoint.
-        self.tb = TensorBoardLogger(out, list(run.skills), resolved.scheduler.skill_lengths,
-                                    purge_step=start_steps + 1 if resume else None)
-        self.f = open(csv_path, "ab" if resume else "wb")
-        if not header:
-            self._write_row(self.fields)
-
-    def _write_row(self, row):
-        buf = io.StringIO()
-        csv.writer(buf).writerow(row)
-        self.f.write(buf.getvalue().encode())
-        self.f.flush()
-
-    def progress(self, steps, m):
-        if not self.primary:
-            return
-        release_free_memory()  # (freed compiler memory glibc would keep: rss_mb then tracks live memory)
-        m = dict(m, rss_mb=resident_mb())
-        self._write_row(format_row(m, self.fields))
-        self.csv_rows += 1
-        self.tb.log(steps, m)
-        self.bar.update(steps, m, self.prefix)
-
-    def checkpoint(self, state, host):
-        if not self.primary:  # (orbax writes the host JSON from the primary process only)
-            self.ckpt.save(state, dict(host, csv_bytes=0, csv_rows=0))
-            return
-        os.fsync(self.f.fileno())  # the rows this checkpoint covers are on disk first
-        self.ckpt.save(state, dict(host, csv_bytes=self.f.tell(), csv_rows=self.csv_rows))
-
-    def close(self):
-        if self.f is not None:
-            self.f.close()
-            self.tb.close()
-        self.ckpt.close()
 
 
 def _load_skills(run, env):
@@ -652,141 +484,59 @@ def _announce(run, resolved, resume: bool, outs, mesh=None, dist=None):
     print(describe_schedule(learner_schedule(resolved)))
 
 
-def _train(out, run, resolved, env, resume: bool, video: bool = False, mesh=None, dist=None, extend_command=None):
-    from parallel_skills import train
+def _train(outs, runs, resolved, env, resume: bool, video: bool = False, mesh=None, dist=None, extend_command=None,
+           grouped: bool = False):
+    """Train the runs ``outs`` / ``runs`` (one, or the seeds of a ``--seeds`` group: same config, one
+    seed each, ``grouped``) in one call of ``parallel_skills.train.train_seeds`` (vmapped over the
+    group's seeds; one run unbatched, as ``train``); each writes its own run directory
+    (``run_files``). ``dist``: this process of a multi-process run (one run), which writes only if
+    primary."""
     from parallel_skills.sharding import Distributed
-    from training.checkpointing import Checkpointer
-
-    dist = dist or Distributed()
-    skills = _load_skills(run, env)
-    seed, num_timesteps = int(run.seed), int(run.num_timesteps)
-    initial_state = host_state = None
-    if resume:
-        initial_state, host_state = main_guard(lambda: _restore(
-            out, Checkpointer(out, save_replay=run.replay_checkpoint), os.path.join(out, "metrics.csv"), env, skills,
-            resolved, seed, mesh=mesh, primary=dist.primary))
-        if dist.primary:
-            _resume_files(out, os.path.join(out, "metrics.csv"), host_state, run, extend_command)
-    if dist.primary:
-        _announce(run, resolved, resume, [out], mesh, dist)
-    t0 = time.perf_counter()
-    bar = Progress(num_timesteps, int(host_state["env_steps"]) if host_state else 0,
-                   **({} if dist.primary else {"out": io.StringIO(), "tty": False}))
-    files = _RunFiles(out, run, resolved, resume, host_state, bar, primary=dist.primary)
-    try:
-        make_policy, params, metrics = train(
-            env, skills, num_timesteps=num_timesteps, seed=seed, config=resolved, progress_fn=files.progress,
-            initial_state=initial_state, host_state=host_state, checkpoint_fn=files.checkpoint,
-            checkpoint_every=run.checkpoint_every, checkpoint_min_seconds=CHECKPOINT_MIN_SECONDS,
-            step_fn=bar.advance, auto_config=False, mesh=mesh)
-    finally:
-        bar.close()
-        files.close()
-    if dist.num_processes > 1:  # (each process's replicas: equal when the processes trained together)
-        print(f"process {dist.process_id} of {dist.num_processes}: parameters sha256 {params_digest(params)}")
-    if dist.primary:
-        _write_outputs(out, run, resolved, env, skills, make_policy, params, metrics, video,
-                       time.perf_counter() - t0)
-
-
-def params_digest(params) -> str:
-    """sha256 of the trained parameters (this process's copy of every replicated array)."""
-    import hashlib
-
-    import jax
-    import numpy as np
-
-    h = hashlib.sha256()
-    for leaf in jax.tree.leaves(jax.device_get(params)):
-        h.update(np.ascontiguousarray(leaf).tobytes())
-    return h.hexdigest()[:16]
-
-
-def _common_step(ckpts, outs) -> int:
-    """The latest checkpoint iteration all runs of a ``--seeds`` group have (they save together; a
-    process killed between two of their saves leaves the last one behind in some)."""
-    common = set.intersection(*(set(c.steps()) for c in ckpts))
-    if not common:
-        raise UsageError(f"cannot resume: the runs of {os.path.dirname(outs[0])} share no checkpoint iteration "
-                         "(resume them one by one: --resume --out DIR/sSEED)")
-    return max(common)
-
-
-def _train_seeds(outs, runs, resolved, env, resume: bool, video: bool = False, mesh=None, extend_command=None):
-    """The runs of ``--seeds`` (same config, one seed each) in one vmapped training
-    (``parallel_skills.train.train_seeds``); each writes its own run directory as a single run would."""
     from parallel_skills.train import train_seeds
     from training.checkpointing import Checkpointer
 
+    dist = dist or Distributed()
     run = runs[0]
     skills = _load_skills(run, env)
-    seeds = [int(r.seed) for r in runs]
     initial_states = host_states = None
     if resume:
         ckpts = [Checkpointer(out, save_replay=r.replay_checkpoint) for out, r in zip(outs, runs)]
-        step = main_guard(lambda: _common_step(ckpts, outs))
-        restored = [main_guard(lambda o=out, c=c, r=r: _restore(o, c, os.path.join(o, "metrics.csv"), env, skills,
-                                                                 resolved, int(r.seed), step=step, mesh=mesh))
-                    for out, c, r in zip(outs, ckpts, runs)]
-        for out, r, (_, host) in zip(outs, runs, restored):  # (all restored: only now is anything written)
-            _resume_files(out, os.path.join(out, "metrics.csv"), host, r, extend_command)
+        if grouped:
+            restored = main_guard(lambda: run_files.restore_group(outs, ckpts, runs, env, skills, resolved, mesh))
+        else:
+            restored = [main_guard(lambda: run_files.restore_run(
+                outs[0], ckpts[0], os.path.join(outs[0], "metrics.csv"), env, skills, resolved, int(run.seed),
+                mesh=mesh, primary=dist.primary))]
+        if dist.primary:
+            for out, r, (_, host) in zip(outs, runs, restored):  # (all restored: only now is anything written)
+                run_files.resume_files(out, os.path.join(out, "metrics.csv"), host, r, extend_command)
         initial_states, host_states = [x[0] for x in restored], [x[1] for x in restored]
-    _announce(run, resolved, resume, outs, mesh)
+    if dist.primary:
+        _announce(run, resolved, resume, outs, mesh, dist)
     t0 = time.perf_counter()
-    bar = Progress(int(run.num_timesteps), int(host_states[0]["env_steps"]) if host_states else 0)
-    files = [_RunFiles(out, r, resolved, resume, host_states[i] if host_states else None, bar, f"s{r.seed} ")
+    bar = Progress(int(run.num_timesteps), int(host_states[0]["env_steps"]) if host_states else 0,
+                   **({} if dist.primary else {"out": io.StringIO(), "tty": False}))
+    files = [run_files.RunFiles(out, r, resolved, resume, host_states[i] if host_states else None, bar,
+                                f"s{r.seed} " if grouped else "", primary=dist.primary)
              for i, (out, r) in enumerate(zip(outs, runs))]
     try:
         make_policy, params, metrics = train_seeds(
-            env, skills, seeds=seeds, num_timesteps=int(run.num_timesteps), config=resolved,
+            env, skills, seeds=[int(r.seed) for r in runs], num_timesteps=int(run.num_timesteps), config=resolved,
             progress_fns=[f.progress for f in files], initial_states=initial_states, host_states=host_states,
             checkpoint_fns=[f.checkpoint for f in files], checkpoint_every=run.checkpoint_every,
-            checkpoint_min_seconds=CHECKPOINT_MIN_SECONDS, step_fn=bar.advance, auto_config=False, mesh=mesh)
+            checkpoint_min_seconds=run_files.CHECKPOINT_MIN_SECONDS, step_fn=bar.advance, auto_config=False,
+            mesh=mesh, seed_axis=grouped)
     finally:
         bar.close()
         for f in files:
             f.close()
-    seconds = time.perf_counter() - t0
-    for out, r, p, m in zip(outs, runs, params, metrics):
-        _write_outputs(out, r, resolved, env, skills, make_policy, p, m, video, seconds)
-
-
-def _write_outputs(out, run, resolved, env, skills, make_policy, params, metrics, video: bool, seconds: float):
-    """The finished run's new skill (``new_skill.npz``), plots, video and ``export.npz``."""
-    from parallel_skills import Skill
-    from parallel_skills.normalization import std as norm_std
-    from training.export import write_export
-
-    names, seed, num_timesteps = list(run.skills), int(run.seed), int(run.num_timesteps)
-    stats = params["normalizer"]
-    skill = Skill.gaussian_mlp(
-        f"{run.task}_new_skill", {"policy": params["new_skill"], "obs_mean": stats.mean, "obs_std": norm_std(stats)},
-        env.action_size, resolved.new_skill.hidden)
-    skill.save(os.path.join(out, "new_skill.npz"), obs_size=int(env.observation_size), task=run.task,
-               physics=run.physics, seed=seed, command=run.command,
-               success=metrics["eval/new_skill_success"], trained_with=names, env_steps=metrics["env_steps"])
-    print(f"new skill saved: {os.path.join(out, 'new_skill.npz')}  ({metrics['env_steps']:,} env steps, "
-          f"{seconds:.0f} s)")
-    _write_plots(out)
-    if video:
-        _write_video(out, env, make_policy, params, seed, int(run.episode_length or 0) or None)
-    # The export's scheduler chooses among the frozen skills: none for finetune, whose one skill is
-    # where the new skill started (recorded as finetuned_from).
-    frozen = [] if resolved.method == "finetune" else list(skills)
-    meta = {"skills": [s.name for s in frozen], "skill_sources": skill_sources(frozen, run.physics), "seed": seed,
-            "env_steps": metrics["env_steps"], "command": run.command,
-            "skill_set": run.skill_set, "num_timesteps": num_timesteps,
-            "success": metrics["eval/new_skill_success"], "return": metrics["eval/new_skill_return"]}
-    if resolved.method == "finetune":
-        meta["finetuned_from"] = names
-    if run.extensions:
-        meta["extensions"] = run.extensions
-    for k in ("eval/scheduler_success", "eval/scheduler_return"):
-        if k in metrics:
-            meta[k.split("/")[1]] = metrics[k]
-    path = write_export(out, params, env=env, config=resolved, task=run.task, physics=run.physics, metadata=meta)
-    print(f"export saved: {path}")
-    print(f"success={metrics['eval/new_skill_success']:.4f} return={metrics['eval/new_skill_return']:.3f}")
+    if dist.num_processes > 1:  # (each process's replicas: equal when the processes trained together)
+        print(f"process {dist.process_id} of {dist.num_processes}: parameters sha256 "
+              f"{run_files.params_digest(params[0])}")
+    if dist.primary:
+        seconds = time.perf_counter() - t0
+        for out, r, p, m in zip(outs, runs, params, metrics):
+            run_files.write_outputs(out, r, resolved, env, skills, make_policy, p, m, video, seconds)
 
 
 if __name__ == "__main__":

@@ -235,16 +235,16 @@ def finetune(env, policy_params, stats, seed: int, num_timesteps: int, num_envs=
     new_skill = state.new_skill.replace(policy_params=copy(policy_params), target_policy_params=copy(policy_params))
     state = state.replace(new_skill=new_skill, normalizer=copy(stats))
     _, params, metrics = train(env, [], num_timesteps=num_timesteps, seed=seed, config=cfg, initial_state=state)
-    return params["new_skill"], params["normalizer"], metrics
+    return params.new_skill, params.normalizer, metrics
 
 
 # ----------------------------------------------------------------------------- main
 
 def skill_from(name, policy_params, stats, action_size, config):
     from parallel_skills import Skill
-    from parallel_skills.normalization import std as norm_std
+    from parallel_skills.skills import GaussianSkillParams
 
-    return Skill.gaussian_mlp(name, {"policy": policy_params, "obs_mean": stats.mean, "obs_std": norm_std(stats)},
+    return Skill.gaussian_mlp(name, GaussianSkillParams.from_normalizer(policy_params, stats),
                               action_size, config.hidden)
 
 

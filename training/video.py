@@ -135,7 +135,7 @@ def record_policy(env, policy, path_stem: str, *, key, episode_length: Optional[
 
 # ----------------------------------------------------------------------------- child process
 
-def _ffmpeg_available() -> bool:
+def ffmpeg_available() -> bool:
     try:
         import imageio.v2  # noqa: F401
         import imageio_ffmpeg
@@ -162,8 +162,8 @@ def _render(argv):
     qpos = np.load(a.src)
     fmt = a.fmt
     if fmt == "auto":
-        fmt = "mp4" if _ffmpeg_available() else "gif"
-    elif fmt == "mp4" and not _ffmpeg_available():
+        fmt = "mp4" if ffmpeg_available() else "gif"
+    elif fmt == "mp4" and not ffmpeg_available():
         print("mp4 needs imageio and imageio-ffmpeg: pip install 'parallel-skills[video]'", file=sys.stderr)
         return EXIT_ENCODE
 

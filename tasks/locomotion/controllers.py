@@ -159,7 +159,7 @@ def _getup_init() -> dict:
 GETUP_INIT = GETUP_SPEC.pack(_getup_init())
 
 
-def _decode_fsm(a_prev):
+def decode_fsm(a_prev):
     phase = jnp.round(a_prev[HEAD_PAN] / PHASE_CODE).astype(jnp.int32)
     timer = jnp.round(a_prev[HEAD_TILT] / TIMER_CODE).astype(jnp.int32)
     valid = (phase >= 0) & (phase < N_PHASES) & (timer >= 0) & (timer <= MAX_TIMER)
@@ -186,7 +186,7 @@ def getup_controller(params) -> Controller:
     def fn(obs, key=None):
         del key
         g = gravity(obs)
-        phase, timer = _decode_fsm(prev_action(obs))
+        phase, timer = decode_fsm(prev_action(obs))
         front, back = g[0] > p["lying_gx"], g[0] < -p["lying_gx"]
         in_front = (phase >= 1) & (phase < first_back)
         in_back = phase >= first_back

@@ -120,7 +120,7 @@ def push(stack, x):
     return jnp.concatenate([x[None], stack[:-1]], axis=0)
 
 
-def _quat_mat(q):
+def quat_mat(q):
     """Unit-normalised quaternion (w, x, y, z) [..., 4] -> rotation matrix [..., 3, 3]."""
     q = q / jnp.linalg.norm(q, axis=-1, keepdims=True)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
@@ -181,7 +181,7 @@ class _Kinematics:
         """World positions [nbody, 3] and rotation matrices [nbody, 3, 3] of all bodies."""
         a = self.root_adr
         pos = jnp.zeros((self.nbody, 3)).at[self.torso].set(qpos[a:a + 3])
-        mat = jnp.tile(jnp.eye(3), (self.nbody, 1, 1)).at[self.torso].set(_quat_mat(qpos[a + 3:a + 7]))
+        mat = jnp.tile(jnp.eye(3), (self.nbody, 1, 1)).at[self.torso].set(quat_mat(qpos[a + 3:a + 7]))
         for lv in self.levels:
             pp, pr = pos[lv["parents"]], mat[lv["parents"]]
             p = pp + jnp.einsum("nij,nj->ni", pr, lv["pos"])
@@ -260,7 +260,7 @@ class LocomotionEnv(Env):
         """The (filter) action whose joint targets are ``hold``."""
         return jnp.clip((hold - self.stand_pose) / ACTION_SCALE, -1.0, 1.0)
 
-    def _sample_goal(self, key):
+    def sample_goal(self, key):
         """``sample_goal``, its speed replaced by the env's fixed ``goal_speed`` if one is set."""
         goal_dir, goal_speed, goal_left = sample_goal(key)
         if self.goal_speed is not None:
@@ -270,7 +270,7 @@ class LocomotionEnv(Env):
     def _task_start(self, f: R.Features, hold, kind, key):
         """Task part of ``info`` at an episode start with features ``f``."""
         a0 = self.hold_action(hold)
-        goal_dir, goal_speed, goal_left = self._sample_goal(key)
+        goal_dir, goal_speed, goal_left = self.sample_goal(key)
         return {
             "a_filt": a0,
             "obs_hist": jnp.tile(proprio(f)[None], (STACK, 1)),
@@ -328,7 +328,7 @@ class LocomotionEnv(Env):
         reward, success, terms = self._reward(f, feet_vel, action, t)
         # Advance the task state: stacks, filter, feet, goal (resampled when its time is up).
         goal_left = t["goal_left"] - self.control_dt
-        new_dir, new_speed, new_left = self._sample_goal(k_goal)
+        new_dir, new_speed, new_left = self.sample_goal(k_goal)
         expired = goal_left <= 0.0
         nxt = dict(t, a_filt=a_filt, obs_hist=push(t["obs_hist"], proprio(f)), act_hist=push(t["act_hist"], action),
                    feet_xy=f.feet_xy, goal_dir=jnp.where(expired, new_dir, t["goal_dir"]),

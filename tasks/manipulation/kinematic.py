@@ -85,7 +85,7 @@ def _gripper_boxes(pinch, yaw, aperture):
     return centres, halves, cs
 
 
-def _gripper_hits_cubes(pinch, yaw, aperture, cube_pos, cube_cs, ignore):
+def gripper_hits_cubes(pinch, yaw, aperture, cube_pos, cube_cs, ignore):
     """True if a finger pad or the palm penetrates a cube other than ``ignore`` (bool [3])."""
     centres, halves, cs = _gripper_boxes(pinch, yaw, aperture)
     hit = G.boxes_overlap(
@@ -113,7 +113,7 @@ def _config_blocked(pinch, yaw, aperture, held, rel_pos, rel_yaw, cube_pos, cube
     hpos = pinch + G.rotate_xy(rel_pos, cs[0], cs[1])
     hyaw = yaw + rel_yaw
     is_held = (jnp.arange(L.NUM_CUBES) == held) & holding
-    blocked = _gripper_hits_cubes(pinch, yaw, aperture, cube_pos, cube_cs, is_held)
+    blocked = gripper_hits_cubes(pinch, yaw, aperture, cube_pos, cube_cs, is_held)
     blocked = blocked | (holding & _cube_hits_cubes(idx, hpos, _cs(hyaw), cube_pos, cube_cs))
     return blocked, hpos, hyaw
 
@@ -123,7 +123,7 @@ def _pinch_frame(pinch, yaw, pos):
     return G.rotate_xy(pos - pinch, jnp.cos(yaw), -jnp.sin(yaw))
 
 
-def _settle(index, cube_pos, cube_yaw):
+def settle(index, cube_pos, cube_yaw):
     """Drop cube ``index`` onto the highest support under it (App.: blocks can stack and fall)."""
     cube_cs = _cs(cube_yaw)
     others = jnp.arange(L.NUM_CUBES) != index
@@ -195,7 +195,7 @@ def dynamics(s: KinematicState, action: jax.Array) -> KinematicState:
     closing = ap_cmd < s.aperture
     # Opening the pads releases the held cube, unless they would open into another cube.
     held_mask = (jnp.arange(L.NUM_CUBES) == s.held) & holding
-    release = holding & (ap_cmd > L.CUBE_SIZE + 1e-6) & ~_gripper_hits_cubes(
+    release = holding & (ap_cmd > L.CUBE_SIZE + 1e-6) & ~gripper_hits_cubes(
         s.pinch, s.yaw, ap_cmd, s.cube_pos, cube_cs, held_mask)
     # Grasp candidates: cubes centred and aligned between the pads.
     rel_all = _pinch_frame(s.pinch, s.yaw, s.cube_pos)  # [3, 3]
@@ -216,7 +216,7 @@ def dynamics(s: KinematicState, action: jax.Array) -> KinematicState:
     # The closing step grasps once a pad would reach the cube: the first pad to touch pushes it to
     # the centre while the other closes on it. (Requiring the commanded aperture itself to reach the
     # cube's width would trap an off-centre cube: the pads stop at first contact, above that width.)
-    pad_reaches = (ap_cmd <= L.CUBE_SIZE) | _gripper_hits_cubes(
+    pad_reaches = (ap_cmd <= L.CUBE_SIZE) | gripper_hits_cubes(
         s.pinch, s.yaw, ap_cmd, s.cube_pos, cube_cs, jnp.arange(L.NUM_CUBES) != g)
     grasp_now = (~holding) & closing & pad_reaches & graspable[g] & snap_ok
 
@@ -227,7 +227,7 @@ def dynamics(s: KinematicState, action: jax.Array) -> KinematicState:
     rel_yaw = jnp.where(grasp_now, snap_yaw - s.yaw, rel_yaw)
 
     # Free finger motion (not grasping, not releasing, not held): blocked by cubes.
-    free_ap_blocked = _gripper_hits_cubes(
+    free_ap_blocked = gripper_hits_cubes(
         s.pinch, s.yaw, ap_cmd, cube_pos, _cs(cube_yaw), jnp.zeros(L.NUM_CUBES, bool)
     )
     aperture = jnp.where(
@@ -236,7 +236,7 @@ def dynamics(s: KinematicState, action: jax.Array) -> KinematicState:
         jnp.where(release | ~free_ap_blocked, ap_cmd, s.aperture),
     )
     # A release drops the cube before the gripper moves on.
-    cube_pos = jnp.where(release, _settle(idx, cube_pos, cube_yaw), cube_pos)
+    cube_pos = jnp.where(release, settle(idx, cube_pos, cube_yaw), cube_pos)
 
     # 2. Gripper translation and yaw, carrying the held cube.
     dp = action[:3] * L.MAX_LINEAR_SPEED * dt

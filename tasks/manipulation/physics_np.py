@@ -307,6 +307,12 @@ class Stepper:
         self._pool = mj_rollout.Rollout(nthread=self.num_threads if self.num_threads > 1 else 0)
         self._buffers: dict[int, np.ndarray] = {}
 
+    @property
+    def pool(self):
+        """The persistent ``mujoco.rollout.Rollout`` (None once closed): benchmarks call its
+        ``rollout`` directly."""
+        return self._pool
+
     def close(self) -> None:
         if self._pool is not None:
             self._pool.close()

@@ -185,7 +185,7 @@ def success_at(rows: list, steps: float, key: str = "eval/new_skill_success") ->
     return before[-1][key] if before else None
 
 
-def _variant_runs(out: str, task: str, variant: Variant, seeds: list):
+def variant_runs(out: str, task: str, variant: Variant, seeds: list):
     """(run dirs, their metrics rows) of the variant's seeds that have evaluations."""
     from training.logging_utils import read_metrics
 
@@ -197,7 +197,7 @@ def _variant_runs(out: str, task: str, variant: Variant, seeds: list):
     return [d for d, _ in pairs], [r for _, r in pairs]
 
 
-def _score(rows: list, budget: int):
+def score(rows: list, budget: int):
     """A variant's success at the budget, mean over its seeds (their last evaluation at or before
     it), then its mean success over all evaluations (ties: the faster learner)."""
     import numpy as np
@@ -210,7 +210,7 @@ def _score(rows: list, budget: int):
 
 def best_settings(variants: list, scores: dict) -> dict:
     """{method: its best variant} over the non-ablation variants with runs (``scores``: name ->
-    ``_score``): the paper reports each baseline at its best sweep setting. Ties keep the order
+    ``score``): the paper reports each baseline at its best sweep setting. Ties keep the order
     the variants were given in."""
     best = {}
     for v in variants:
@@ -246,12 +246,12 @@ def write_results(out: str, tasks: list, variants: list, seeds: list, budgets: d
                   "| --- | " + " | ".join("---" for _ in header) + " | --- | --- |"]
         found, scores = {}, {}
         for v in variants:
-            dirs, rows = _variant_runs(out, task, v, seeds)
+            dirs, rows = variant_runs(out, task, v, seeds)
             if not rows:
                 lines.append(f"| {v.name} | " + " | ".join("–" for _ in header) + " | 0 | – |")
                 continue
             found[v.name] = (dirs, rows)
-            scores[v.name] = _score(rows, budget)
+            scores[v.name] = score(rows, budget)
             cells = []
             for f in FRACTIONS:
                 vals = [success_at(r, f * budget) for r in rows if r[-1]["env_steps"] >= f * budget]
@@ -302,7 +302,7 @@ def archive_runs(out: str, archive: str, tasks: list, variants: list, seeds: lis
 
 
 def main(argv=None):
-    from parallel_skills.config import TrainConfig
+    from parallel_skills import methods as method_registry
 
     argv = list(sys.argv[1:] if argv is None else argv)
     p = Parser(prog="python -m training.experiments.paper", description=__doc__.splitlines()[0])
@@ -334,7 +334,7 @@ def main(argv=None):
             items = re.findall(r"[a-z0-9_]+(?:\[[^\]]*\])?", args.methods)
         else:
             items = [x for x in args.methods.split(sep) if x.strip()]
-        variants = [parse_variant(x, TrainConfig.METHODS) for x in items]
+        variants = [parse_variant(x, method_registry.names()) for x in items]
         if len({v.name for v in variants}) != len(variants):
             raise UsageError("a variant is listed twice")
         try:

@@ -342,8 +342,8 @@ def sampled_apply(skill, min_std: float):
                                   hidden=tuple(skill.metadata["hidden"]), min_std=float(min_std))
 
     def apply(p, obs, key):
-        x = jnp.clip((obs - p["obs_mean"]) / p["obs_std"], -CLIP, CLIP)
-        mean, std = net.apply(p["policy"], x)
+        x = jnp.clip((obs - p.obs_mean) / p.obs_std, -CLIP, CLIP)
+        mean, std = net.apply(p.policy, x)
         return networks.sample_action(mean, std, key)
 
     return apply
