@@ -35,8 +35,9 @@ METAVARS = {int: "INT", float: "FLOAT", bool: "true|false", str: "STR", tuple: "
 
 @functools.lru_cache(maxsize=None)
 def field_comments(cls) -> dict:
-    """``{field name: its comment}`` from ``cls``'s source: the ``#`` lines right above the field
-    and the one at its end, joined (backquotes dropped); {} where the source cannot be read."""
+    """``{field name: its comment}`` from ``cls``'s source for the fields that have one: the ``#``
+    lines right above the field and the one at its end, joined (backquotes dropped); {} where the
+    source cannot be read."""
     try:
         source = textwrap.dedent(inspect.getsource(cls))
     except (OSError, TypeError):
@@ -54,7 +55,8 @@ def field_comments(cls) -> dict:
         name = text.split(":", 1)[0].strip()
         if line.startswith("    ") and not line.startswith("     ") and name in names:
             parts = above + ([trailing[number]] if number in trailing else [])
-            out[name] = " ".join(p.lstrip("#").strip() for p in parts).replace("``", "")
+            if parts:
+                out[name] = " ".join(p.lstrip("#").strip() for p in parts).replace("``", "")
         above = []
     return out
 
