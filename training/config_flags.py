@@ -10,7 +10,7 @@ type (``text_value``; a list is comma-separated, ``--scheduler.skill_lengths 10,
 class's default with that one value, so ``__post_init__`` runs, and its ``FieldError`` becomes
 ``argument --FLAG: expected <what is allowed>, got '<text>'``. Rules that relate several fields
 (a plain ValueError there) are left to the config that the given flags make together
-(``apply_flags``).
+(``training.run`` sets them with ``config.from_dict``).
 
 Every generated flag defaults to None, "not given": ``given(args, names)`` is what the user set,
 so the recipe fills only the rest (``config.resolve(given=...)``) and ``--resume`` can reject the
@@ -28,7 +28,7 @@ import json
 import textwrap
 import tokenize
 
-from parallel_skills.config import FieldError, field_types, from_json_value, nested, replaced
+from parallel_skills.config import FieldError, field_types, from_json_value
 
 METAVARS = {int: "INT", float: "FLOAT", bool: "true|false", str: "STR", tuple: "INT,INT,..."}
 
@@ -96,7 +96,7 @@ def field_parser(cls, name: str):
         except FieldError as e:
             if e.name == name:
                 raise argparse.ArgumentTypeError(f"expected {e.allowed}, got {text!r}") from None
-        except ValueError:  # a rule relating fields: the whole config checks it (apply_flags)
+        except ValueError:  # a rule relating fields: the config of all the given flags checks it
             pass
         return value
 
@@ -137,12 +137,6 @@ def given(args, names) -> dict:
     """``{dotted name: value}`` of the flags among ``names`` that were given (not None)."""
     values = vars(args)
     return {n: values[n] for n in names if values.get(n) is not None}
-
-
-def apply_flags(cfg, values: dict, where: str = "the command line"):
-    """``cfg`` with the given flags' values (``given``) set: one config, so the rules that relate
-    several fields are checked too (ValueError, one line)."""
-    return replaced(cfg, nested(values), where)
 
 
 def flag_text(value) -> str:
