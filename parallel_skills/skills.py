@@ -60,6 +60,25 @@ class GaussianSkillParams:
         return {"policy": self.policy, "obs_mean": self.obs_mean, "obs_std": self.obs_std}
 
 
+def gaussian_mlp_apply(action_size: int, hidden: Sequence[int], sampled: bool = False,
+                       min_std: Optional[float] = None):
+    """``apply(params: GaussianSkillParams, obs [O], key) -> action [A]`` of a Gaussian-MLP skill:
+    observations normalised with the run's statistics (clipped), then the policy's mean action, or
+    with ``sampled`` an action drawn from its Gaussian (``networks.sample_action``; ``min_std`` its
+    std floor, default ``GaussianPolicy.min_std``)."""
+    from parallel_skills import networks
+
+    kwargs = {} if min_std is None else {"min_std": float(min_std)}
+    net = networks.GaussianPolicy(action_size=int(action_size), hidden=tuple(hidden), **kwargs)
+
+    def apply(p: GaussianSkillParams, obs, key):
+        x = jnp.clip((obs - p.obs_mean) / p.obs_std, -CLIP, CLIP)
+        mean, std = net.apply(p.policy, x)
+        return networks.sample_action(mean, std, key) if sampled else mean
+
+    return apply
+
+
 def _no_params_apply(fn):
     def apply(params, obs, key):
         del params
@@ -101,15 +120,7 @@ class Skill:
         ``params``: ``GaussianSkillParams`` (or a {"policy", "obs_mean", "obs_std"} mapping):
         observations are normalised with the training run's statistics before the network.
         ``None``: the architecture alone, whose ``apply`` takes the params at call time."""
-        from parallel_skills import networks
-
-        net = networks.GaussianPolicy(action_size=action_size, hidden=tuple(hidden))
-
-        def apply(p: GaussianSkillParams, obs, key):
-            x = jnp.clip((obs - p.obs_mean) / p.obs_std, -CLIP, CLIP)
-            mean, _ = net.apply(p.policy, x)
-            return mean
-
+        apply = gaussian_mlp_apply(action_size, hidden)
         meta = dict(metadata, action_size=int(action_size), hidden=[int(h) for h in hidden])
         params = None if params is None else GaussianSkillParams.of(params)
         return Skill(name=name, apply=apply, params=params, arch=f"gaussian_mlp{tuple(hidden)}->{action_size}",

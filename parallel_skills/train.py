@@ -368,16 +368,15 @@ def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: in
     new_apply = learners.make_new_skill_apply(int(env.action_size), trainer.config.new_skill)
     actor = make_actor(env, trainer.skills, trainer.config, num_episodes)
 
-    def eval_new(new_params, normalizer, key):
-        policy = lambda obs, k: new_apply(new_params, obs_norm.normalize(normalizer, obs))[0]  # noqa: E731
-        return rollout_episodes(env, policy, key, num_episodes, episode_length)
+    def new_skill_evaluation(act):  # act: networks.deterministic_action or networks.sample_action
+        def evaluate(new_params, normalizer, key):
+            def policy(obs, k):
+                mean, std = new_apply(new_params, obs_norm.normalize(normalizer, obs))
+                return act(mean, std, k)
 
-    def eval_new_sampled(new_params, normalizer, key):
-        def policy(obs, k):
-            mean, std = new_apply(new_params, obs_norm.normalize(normalizer, obs))
-            return networks.sample_action(mean, std, k)
+            return rollout_episodes(env, policy, key, num_episodes, episode_length)
 
-        return rollout_episodes(env, policy, key, num_episodes, episode_length)
+        return evaluate
 
     def eval_scheduler(sched_params, new_params, normalizer, key):
         k0, k1 = jax.random.split(key)
@@ -413,7 +412,9 @@ def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: in
                                                       jax.random.split(k1, episode_length))
         return {"return": ret, "success": succ, "discounted_return": disc_ret, "value_at_reset": value}
 
-    return Evaluators(new_skill=jax.jit(eval_new), new_skill_sampled=jax.jit(eval_new_sampled),
+    mean_action = lambda mean, std, k: networks.deterministic_action(mean, std)  # noqa: E731
+    return Evaluators(new_skill=jax.jit(new_skill_evaluation(mean_action)),
+                      new_skill_sampled=jax.jit(new_skill_evaluation(networks.sample_action)),
                       scheduler=jax.jit(eval_scheduler), scheduler_sampled=jax.jit(eval_scheduler_sampled))
 
 

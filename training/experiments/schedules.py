@@ -313,7 +313,11 @@ def load_new_skill(path, env, actions: str = "mean"):
         raise UsageError(f"--new_skill: {str(e).splitlines()[0]}") from None
     skill = dataclasses.replace(skill, name=NEW_SKILL, collection_noise=False)
     if actions == "sampled":
-        skill = dataclasses.replace(skill, apply=sampled_apply(skill, run_min_std(os.path.dirname(os.path.abspath(file)))))
+        from parallel_skills.skills import gaussian_mlp_apply
+
+        min_std = run_min_std(os.path.dirname(os.path.abspath(file)))
+        skill = dataclasses.replace(skill, apply=gaussian_mlp_apply(skill.metadata["action_size"], skill.metadata["hidden"],
+                                                                    sampled=True, min_std=min_std))
     return skill
 
 
@@ -330,23 +334,6 @@ def run_min_std(run_dir: str) -> float:
         return float(data["train_config"]["new_skill"]["min_std"])
     except (OSError, ValueError, KeyError, TypeError):
         return float(NewSkillConfig.min_std)
-
-
-def sampled_apply(skill, min_std: float):
-    """``apply(params, obs [O], key) -> action [A]`` of a Gaussian-MLP ``skill`` sampling its
-    Gaussian (``networks.sample_action``) instead of taking the mean."""
-    from parallel_skills import networks
-    from parallel_skills.normalization import CLIP
-
-    net = networks.GaussianPolicy(action_size=int(skill.metadata["action_size"]),
-                                  hidden=tuple(skill.metadata["hidden"]), min_std=float(min_std))
-
-    def apply(p, obs, key):
-        x = jnp.clip((obs - p.obs_mean) / p.obs_std, -CLIP, CLIP)
-        mean, std = net.apply(p.policy, x)
-        return networks.sample_action(mean, std, key)
-
-    return apply
 
 
 def parse_seeds(text: str) -> list[int]:
