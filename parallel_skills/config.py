@@ -1,6 +1,12 @@
 """Configurations: the learners' (paper defaults, SkillS App. B.3, manipulation), the run's
-(``TrainConfig``), the recipes (cpu, parallel, paper) and ``resolve`` (device-dependent defaults), and the checks of
-every value (``__post_init__`` of each class; ``from_dict`` for JSON input: types and ranges).
+(``TrainConfig``; ``RunConfig``: length, seed, checkpoints), the recipes (cpu, parallel, paper) and
+``resolve`` (device-dependent defaults), and the checks of every value.
+
+Every value is checked here alone, by the classes: each ``__post_init__`` runs ``check_fields``
+(types and ranges, from the fields' types) and then its class's own rules. A value that one field
+does not allow is a ``FieldError`` (field, what is allowed, value), which the inputs turn into
+their one-line messages: ``from_dict`` for JSON (config files, a run's config.json) and
+``training.config_flags`` for the command line, whose flags are generated from these fields.
 
 All configs are frozen, hashable ``dataclasses.dataclass`` objects: pass them as
 static arguments to ``jax.jit`` (or close over them); every field is a Python scalar,
@@ -13,8 +19,11 @@ scheduler actor 100 / critic 25, new skill actor 25 / critic 100.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
+import numbers
+import typing
 from typing import Optional, Sequence, Tuple
 
 from parallel_skills import methods
@@ -23,25 +32,96 @@ from parallel_skills import methods
 POSITIVE_FIELDS = frozenset({
     "num_envs", "replay_size", "unroll_length", "eval_episodes", "eval_every", "batch_size",
     "target_actor_period", "target_critic_period", "num_action_samples", "mpo_num_samples",
-    "num_critics", "n_step"})
+    "num_critics", "n_step", "num_timesteps", "episode_length", "checkpoint_every"})
+# Float fields that must lie in [0, 1] (every other float field must be finite), in any config class.
+UNIT_INTERVAL_FIELDS = frozenset({"target_tau", "mpo_alpha", "dagger_alpha"})
 
 
-def check_ranges(config) -> None:
-    """The range rule of every config class: integer fields ≥ 1 (``POSITIVE_FIELDS``) or ≥ 0, float
-    fields finite, ``target_tau`` in [0, 1]. ValueError naming the field."""
-    tau = getattr(config, "target_tau", 0.0)
-    if not 0.0 <= tau <= 1.0:
-        raise ValueError(f"target_tau must be in [0, 1] (0: periodic hard copies), got {tau}")
-    for f in dataclasses.fields(config):
-        value = getattr(config, f.name)
-        if isinstance(value, bool) or value is None:
+class FieldError(ValueError):
+    """A value that one field does not allow whatever the other fields hold: ``name`` (dotted
+    from the outermost config where it is re-raised, ``within``), ``allowed`` (a noun phrase:
+    "a positive integer"), ``value``; a ``nullable`` field also takes None (JSON null).
+    A rule that relates several fields raises a plain ValueError instead."""
+
+    def __init__(self, name: str, allowed: str, value, nullable: bool = False):
+        super().__init__(name, allowed, value, nullable)
+        self.name, self.allowed, self.value, self.nullable = name, allowed, value, nullable
+
+    def __str__(self) -> str:
+        allowed = self.allowed + (" or null" if self.nullable else "")
+        shown = repr(self.value) if isinstance(self.value, str) else json.dumps(self.value, default=str)
+        return f"{self.name} must be {allowed}, got {shown}"
+
+    def within(self, prefix: str) -> "FieldError":
+        """The same error, its field named from an enclosing config (``prefix`` "scheduler.")."""
+        return FieldError(prefix + self.name, self.allowed, self.value, self.nullable)
+
+
+@functools.lru_cache(maxsize=None)
+def field_types(cls) -> dict:
+    """``{field name: (type, nullable)}`` of a config class: ``Optional[int]`` -> ``(int, True)``,
+    ``Tuple[int, ...]`` -> ``(tuple, False)``, a nested config -> ``(its class, False)``."""
+    out = {}
+    for name, hint in typing.get_type_hints(cls).items():
+        args = typing.get_args(hint)
+        nullable = typing.get_origin(hint) is typing.Union and type(None) in args
+        if nullable:
+            hint = next(a for a in args if a is not type(None))
+        out[name] = (typing.get_origin(hint) or hint, nullable)
+    return {f.name: out[f.name] for f in dataclasses.fields(cls)}
+
+
+def allowed_values(name: str, kind) -> str:
+    """What the type / range rule lets field ``name`` of type ``kind`` hold, as a noun phrase."""
+    if kind is bool:
+        return "true or false"
+    if kind is int:
+        return "a positive integer" if name in POSITIVE_FIELDS else "a non-negative integer"
+    if kind is float:
+        return "a number in [0, 1]" if name in UNIT_INTERVAL_FIELDS else "a finite number"
+    if kind is tuple:
+        return "a non-empty list of positive integers"
+    if kind is str:
+        return "a string"
+    return f"a {kind.__name__}"
+
+
+def fits(name: str, kind, value) -> bool:
+    """Whether ``value`` has field ``name``'s type ``kind`` and lies in its range (``allowed_values``)."""
+    def integer(v, lo):
+        return isinstance(v, numbers.Integral) and not isinstance(v, bool) and v >= lo
+
+    if kind is bool:
+        return isinstance(value, bool)
+    if kind is int:
+        return integer(value, 1 if name in POSITIVE_FIELDS else 0)
+    if kind is float:
+        if not isinstance(value, numbers.Real) or isinstance(value, bool) or not math.isfinite(value):
+            return False
+        return 0.0 <= value <= 1.0 if name in UNIT_INTERVAL_FIELDS else True
+    if kind is tuple:
+        return isinstance(value, (tuple, list)) and len(value) > 0 and all(integer(v, 1) for v in value)
+    return isinstance(value, kind)
+
+
+def check_fields(config) -> None:
+    """The type and range rule of every config class, from its fields' types: integers ≥ 1
+    (``POSITIVE_FIELDS``) or ≥ 0, floats finite (in [0, 1]: ``UNIT_INTERVAL_FIELDS``), tuples
+    non-empty of positive integers, booleans and strings as typed; None only where the type is
+    Optional. FieldError naming the first field that breaks it. Each class's ``__post_init__``
+    calls it, then checks its own rules."""
+    for name, (kind, nullable) in field_types(type(config)).items():
+        value = getattr(config, name)
+        if value is None and nullable:
             continue
-        if isinstance(value, int):
-            lo = 1 if f.name in POSITIVE_FIELDS else 0
-            if value < lo:
-                raise ValueError(f"{f.name} must be {'a positive' if lo else 'a non-negative'} integer, got {value}")
-        elif isinstance(value, float) and not math.isfinite(value):
-            raise ValueError(f"{f.name} must be a finite number, got {value}")
+        if not fits(name, kind, value):
+            raise FieldError(name, allowed_values(name, kind), value, nullable)
+
+
+def check_choice(name: str, value, choices: Sequence[str], allowed: str, nullable: bool = False) -> None:
+    """FieldError unless ``value`` is one of ``choices`` (or None, ``nullable``); ``allowed`` says them."""
+    if not (value in choices or (nullable and value is None)):
+        raise FieldError(name, allowed, value, nullable)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,12 +167,13 @@ class SchedulerConfig:
     policy_warmup_updates: int = 0
 
     def __post_init__(self):
-        check_ranges(self)
+        check_fields(self)
         lengths = tuple(self.skill_lengths)
-        if not lengths or any(int(k) < 1 for k in lengths) or list(lengths) != sorted(set(lengths)):
-            raise ValueError(f"skill_lengths must be positive, unique and ascending, got {lengths}")
+        if list(lengths) != sorted(set(lengths)):
+            raise FieldError("skill_lengths", "positive, unique and ascending integers", lengths)
         if not 0.0 < self.initial_max_length_prob < 1.0 and len(lengths) > 1:
-            raise ValueError("initial_max_length_prob must be in (0, 1)")
+            raise ValueError(f"initial_max_length_prob must be in (0, 1) with more than one skill length, "
+                             f"got {self.initial_max_length_prob}")
 
     @property
     def num_lengths(self) -> int:
@@ -164,19 +245,9 @@ class NewSkillConfig:
     grad_clip_norm: float = 40.0
 
     def __post_init__(self):
-        check_ranges(self)
-        if self.crr_mode not in ("exp", "indicator"):
-            raise ValueError(f"crr_mode must be 'exp' or 'indicator', got {self.crr_mode!r}")
-        if int(self.num_critics) < 1:
-            raise ValueError(f"num_critics must be a positive integer, got {self.num_critics}")
-        if int(self.n_step) < 1:
-            raise ValueError(f"n_step must be a positive integer, got {self.n_step}")
-        if not 0.0 <= self.mpo_alpha <= 1.0:
-            raise ValueError(f"mpo_alpha must be in [0, 1], got {self.mpo_alpha}")
-        if self.baseline not in BASELINES:
-            raise ValueError(f"baseline must be one of {', '.join(BASELINES)}, got {self.baseline!r}")
-        if not 0.0 <= self.dagger_alpha <= 1.0:
-            raise ValueError(f"dagger_alpha must be in [0, 1], got {self.dagger_alpha}")
+        check_fields(self)
+        check_choice("crr_mode", self.crr_mode, ("exp", "indicator"), "'exp' or 'indicator'")
+        check_choice("baseline", self.baseline, BASELINES, f"one of {', '.join(BASELINES)}")
 
     @property
     def reads_teacher(self) -> bool:
@@ -211,20 +282,36 @@ class TrainConfig:
     new_skill: NewSkillConfig = NewSkillConfig()
 
     def __post_init__(self):
-        method = methods.get(self.method)
+        check_fields(self)
+        check_choice("recipe", self.recipe, RECIPES, f"one of {', '.join(RECIPES)}", nullable=True)
+        check_choice("method", self.method, methods.names(), f"one of {', '.join(methods.names())}")
         baseline = self.new_skill.baseline
-        if BASELINE_READS_TEACHER[baseline] and method.teacher_baseline != baseline:
+        if BASELINE_READS_TEACHER[baseline] and methods.get(self.method).teacher_baseline != baseline:
             teachers = [m.name for m in methods.all_methods() if m.teacher_baseline == baseline]
             raise ValueError(f"new_skill.baseline {baseline!r} reads the skills' actions: it needs "
                              f"method {' or '.join(map(repr, teachers))}, got method {self.method!r}")
-        if self.recipe is not None and self.recipe not in RECIPES:
-            raise ValueError(f"recipe must be one of {', '.join(RECIPES)} (or null: the device's), got {self.recipe!r}")
-        check_ranges(self)
 
     @property
     def steps_per_iteration(self) -> int:
         """Env steps collected per iteration (num_envs · unroll_length; needs a resolved config)."""
         return int(self.num_envs) * int(self.unroll_length)
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+    """A run's length, seed and checkpoints: the arguments of ``train`` besides its ``TrainConfig``
+    (checked here; ``training.run`` has a flag of each name and records them in config.json)."""
+
+    # Env steps to train for; None: training.run's default (256k on a CPU, 20M on an accelerator).
+    num_timesteps: Optional[int] = None
+    seed: int = 0
+    episode_length: Optional[int] = None  # env steps per episode; None: the task's
+    # Env steps between checkpoints; None: at evaluations, at most once a minute, and at the end
+    # (training.run keeps the latest 2).
+    checkpoint_every: Optional[int] = None
+
+    def __post_init__(self):
+        check_fields(self)
 
 
 def updates_per_iteration(samples_per_insert: float, num_inserted: int, batch_size: int) -> int:
@@ -359,81 +446,70 @@ def resolve(config: TrainConfig, backend: Optional[str] = None,
 
 # ----------------------------------------------------------------------------- JSON input
 
-NESTED = ("scheduler", "new_skill")
-
-
-def _check_value(where: str, name: str, default, value):
-    """Type / range check of one JSON value against the field's default; returns the value."""
-    def bad(what):
-        return ValueError(f"{where}: {name} must be {what}, got {json.dumps(value)}")
-
-    is_int = isinstance(value, int) and not isinstance(value, bool)
-    lo = 1 if name.rsplit(".", 1)[-1] in POSITIVE_FIELDS else 0
-    if name == "recipe":
-        if value is not None and value not in RECIPES:
-            raise bad(f"one of {', '.join(RECIPES)} or null")
-        return value
-    if default is None:  # device-dependent size (num_envs, replay_size)
-        if value is None:
-            return None
-        if not is_int or value < lo:
-            raise bad("a positive integer or null")
-        return value
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise bad("true or false")
-        return value
-    if isinstance(default, int):
-        if not is_int or value < lo:
-            raise bad("a positive integer" if lo else "a non-negative integer")
-        return value
-    if isinstance(default, float):
-        if not (is_int or isinstance(value, float)) or not math.isfinite(value):
-            raise bad("a finite number")
-        return float(value)
-    if isinstance(default, str):
-        if not isinstance(value, str):
-            raise bad("a string")
-        return value
-    if isinstance(default, tuple):
-        if (not isinstance(value, (list, tuple)) or not value
-                or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in value)):
-            raise bad("a non-empty list of positive integers")
+def from_json_value(kind, value):
+    """A JSON value as field type ``kind`` holds it: a list as a tuple, an integer as a float for a
+    float field; anything else as it is (the config's ``__post_init__`` judges it)."""
+    if kind is tuple and isinstance(value, list):
         return tuple(value)
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
     return value
+
+
+def replaced(cfg, data: dict, where: str, prefix: str = ""):
+    """``cfg`` (any config class) with the fields of the JSON object ``data`` set, nested configs'
+    from nested objects. Every name and object is checked here, every value by the config classes
+    (``__post_init__``); either failure is a one-line ValueError naming ``where`` (a field dotted
+    from ``prefix``, "scheduler.")."""
+    kinds = field_types(type(cfg))
+    updates = {}
+    for key, value in data.items():
+        if key not in kinds:
+            valid = ", ".join(sorted(kinds))
+            raise ValueError(f"unknown config field {key!r} in {where}; valid: {valid}" if not prefix else
+                             f"unknown {prefix[:-1]} config field(s) {sorted(set(data) - set(kinds))} in {where}; "
+                             f"valid: {valid}")
+        kind = kinds[key][0]
+        if dataclasses.is_dataclass(kind):
+            if not isinstance(value, dict):
+                raise ValueError(f"{where}: {key} must be a JSON object of {kind.__name__} fields")
+            updates[key] = replaced(getattr(cfg, key), value, where, f"{prefix}{key}.")
+        else:
+            updates[key] = from_json_value(kind, value)
+    try:
+        return dataclasses.replace(cfg, **updates)
+    except FieldError as e:
+        raise ValueError(f"{where}: {e.within(prefix)}") from None
+    except (ValueError, TypeError) as e:  # a rule relating several fields
+        raise ValueError(f"{where}: {e}") from None
 
 
 def from_dict(cfg: TrainConfig, data: dict, where: str) -> TrainConfig:
     """``cfg`` with the TrainConfig fields of the JSON object ``data`` (nested scheduler / new_skill
-    objects) set; every name, type and range checked. ``where`` names the source in the one-line
-    ValueError."""
+    objects) set (``replaced``: names checked here, values by the config classes). ``where`` names
+    the source in the one-line ValueError."""
     if not isinstance(data, dict):
         raise ValueError(f"{where} must hold a JSON object of TrainConfig fields")
-    top = {f.name for f in dataclasses.fields(cfg)}
-    updates = {}
-    for key, value in data.items():
-        if key not in top:
-            raise ValueError(f"unknown config field {key!r} in {where}; valid: {', '.join(sorted(top))}")
-        if key in NESTED:
-            sub = getattr(cfg, key)
-            if not isinstance(value, dict):
-                raise ValueError(f"{where}: {key} must be a JSON object of {type(sub).__name__} fields")
-            valid = {f.name for f in dataclasses.fields(sub)}
-            bad = sorted(set(value) - valid)
-            if bad:
-                raise ValueError(f"unknown {key} config field(s) {bad} in {where}; valid: {', '.join(sorted(valid))}")
-            checked = {k: _check_value(where, f"{key}.{k}", getattr(sub, k), v) for k, v in value.items()}
-            try:
-                value = dataclasses.replace(sub, **checked)
-            except (ValueError, TypeError) as e:
-                raise ValueError(f"{where}: invalid {key} config: {e}") from None
-        else:
-            value = _check_value(where, key, getattr(cfg, key), value)
-        updates[key] = value
-    try:
-        return dataclasses.replace(cfg, **updates)
-    except (ValueError, TypeError) as e:
-        raise ValueError(f"{where}: invalid config: {e}") from None
+    return replaced(cfg, data, where)
+
+
+def nested(values: dict) -> dict:
+    """``{"a": 1, "new_skill.n_step": 3}`` -> ``{"a": 1, "new_skill": {"n_step": 3}}`` (``dotted_names``' inverse)."""
+    out: dict = {}
+    for name, value in values.items():
+        *path, leaf = name.split(".")
+        node = out
+        for part in path:
+            node = node.setdefault(part, {})
+        node[leaf] = value
+    return out
+
+
+def dotted_value(cfg, name: str):
+    """The value of the dotted field ``name`` of ``cfg`` (``"scheduler.n_step"``)."""
+    for part in name.split("."):
+        cfg = getattr(cfg, part)
+    return cfg
 
 
 def dotted_names(data: dict, prefix: str = "") -> list[str]:

@@ -27,7 +27,7 @@ from flax import struct
 from parallel_skills import learners, methods, networks, sharding
 from parallel_skills import normalization as obs_norm
 from parallel_skills.acting import Actor, ActorState, StepStats
-from parallel_skills.config import TrainConfig, resolve, updates_per_iteration
+from parallel_skills.config import RunConfig, TrainConfig, resolve, updates_per_iteration
 from parallel_skills.evaluation import rollout_episodes
 from parallel_skills.replay import PendingStep, Replay, Transition
 from parallel_skills.rhpo import rhpo_learner_update
@@ -421,15 +421,10 @@ def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: in
 def _checked_config(environment, skills, config: TrainConfig, num_timesteps, num_envs, checkpoint_every,
                     auto_config: bool) -> TrainConfig:
     """``config`` with ``num_envs`` set and (``auto_config``) the device's defaults filled; ValueError
-    for bad arguments (one line)."""
-    if int(num_timesteps) < 1:
-        raise ValueError(f"num_timesteps must be a positive integer, got {num_timesteps}")
-    if checkpoint_every is not None and int(checkpoint_every) < 1:
-        raise ValueError(f"checkpoint_every must be a positive integer (env steps), got {checkpoint_every}")
+    for bad arguments (one line; the values are checked by ``RunConfig`` and ``TrainConfig``)."""
+    RunConfig(num_timesteps=num_timesteps, checkpoint_every=checkpoint_every)
     if num_envs is not None:
-        if int(num_envs) < 1:
-            raise ValueError(f"num_envs must be a positive integer, got {num_envs}")
-        config = dataclasses.replace(config, num_envs=int(num_envs))
+        config = dataclasses.replace(config, num_envs=num_envs)
     if auto_config:
         config, notes = resolve(config)
         if notes:

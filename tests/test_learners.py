@@ -252,7 +252,7 @@ def test_polyak_targets():
         jax.random.PRNGKey(2))
     for a, b in zip(jax.tree_util.tree_leaves(s_one.target_policy_params), jax.tree_util.tree_leaves(s_one.policy_params)):
         np.testing.assert_array_equal(a, b)
-    with pytest.raises(ValueError, match="target_tau must be in"):
+    with pytest.raises(ValueError, match=r"target_tau must be a number in \[0, 1\]"):
         NewSkillConfig(target_tau=1.5)
 
 
