@@ -216,6 +216,12 @@ def test_resume_without_checkpoint_and_conflicting_flags(ws, fresh_run, capsys):
     _fails(out + ["--method", "scratch"], capsys, "--method scratch conflicts")
     _fails(out + ["--recipe", "paper"], capsys, "--recipe paper conflicts", '"cpu"')
     _fails(out + ["--no-replay-checkpoint"], capsys, "--no-replay-checkpoint conflicts")
+    # Generated flags too: nested fields (the recipe's value is the run's) and the RunConfig ones.
+    _fails(out + ["--new_skill.n_step", "3"], capsys, "--new_skill.n_step 3 conflicts with", "new_skill.n_step=10")
+    _fails(out + ["--scheduler.skill_lengths", "2,4"], capsys, "--scheduler.skill_lengths 2,4 conflicts",
+           "scheduler.skill_lengths=[2, 3]")
+    _fails(out + ["--checkpoint_every", "7"], capsys, "--checkpoint_every 7 conflicts", "checkpoint_every=null")
+    _fails(out + ["--new_skill.n_step", "10", "--scheduler.skill_lengths", "2,3"], capsys, "holds no checkpoint")
     _fails(out + ["--config", str(changed)], capsys, "sets unroll_length=7", "has 5")
     _fails(out + ["--config", str(ws / "missing.json")], capsys, "does not exist")
     # Flags equal to the run's own config are not conflicts (the error is the missing checkpoint).

@@ -18,7 +18,12 @@ The last line printed is ``success=<new skill alone> return=<mean>``.
 
 Settings come from, in increasing precedence: the defaults, ``--config FILE.json`` (any
 ``TrainConfig`` field, nested ``scheduler`` / ``new_skill`` fields included), command-line flags.
-Bad input is reported as one line on stderr with exit code 2, before anything is written.
+Every ``TrainConfig`` field is a flag too, dotted for the nested ones (``--num_envs 64``,
+``--scheduler.n_step 10``, ``--new_skill.samples_per_insert 32``), and so is every ``RunConfig``
+field (``--num_timesteps``, ``--seed``, ``--episode_length``, ``--checkpoint_every``): generated
+from the dataclasses (``training.config_flags``), which check every value. The flags written out
+here are the ones that are no config field. Bad input is reported as one line on stderr with exit
+code 2, before anything is written.
 """
 
 from __future__ import annotations
@@ -31,8 +36,8 @@ import sys
 import time
 
 from parallel_skills import methods
-from parallel_skills.config import RECIPES
-from training import rundir, run_files
+from parallel_skills.config import RunConfig, TrainConfig
+from training import config_flags, rundir, run_files
 from training.cli import Parser, UsageError, check_writable, main_guard, nonnegative_int, positive_int
 from training.logging_utils import Progress
 from training.rundir import RunRecord
@@ -40,30 +45,27 @@ from training.rundir import RunRecord
 # CPU: the README quickstart must end within 10 minutes on 2 cores (kinematic lift, CPU recipe,
 # seed 0: 0.84 at 218k and 256k; other seeds are slower; README, docs/scaling.md).
 DEFAULT_TIMESTEPS = {"cpu": 256_000, "accelerator": 20_000_000}
-# Flags whose defaults are applied after parsing (None = "not given": --resume rejects given flags
-# that conflict with the run's config.json).
-DEFAULTS = dict(task="lift", physics="kinematic", seed=0, skills="useful", skill_source="scripted", method="skills",
-                eval_episodes=32)
+# Defaults of the flags that are no config field, applied after parsing (None = "not given":
+# --resume rejects given flags that conflict with the run's config.json; so do generated flags).
+DEFAULTS = dict(task="lift", physics="kinematic", skills="useful", skill_source="scripted")
+BASE_CONFIG = TrainConfig(eval_episodes=32)  # the TrainConfig a run starts from (more evaluation episodes)
+RUN_FLAGS = config_flags.flag_names(RunConfig)  # num_timesteps, seed, episode_length, checkpoint_every
+TRAIN_FLAGS = config_flags.flag_names(TrainConfig)  # recipe, num_envs, ..., scheduler.*, new_skill.*
 DEFAULT_CACHE_DIR = os.path.join(os.path.expanduser("~"), ".cache", "parallel_skills_jax")
 
 
 def build_parser():
+    """The flags that are no config field, written out, then one per ``RunConfig`` and
+    ``TrainConfig`` field (``config_flags.add_config_flags``)."""
     import tasks
     from training.skill_library import SET_NAMES, SOURCES
 
-    p = Parser(prog="python -m training.run", description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m training.run", description=__doc__.splitlines()[0],
+               epilog="The learners' defaults shown are the paper's (App. B.3): the recipe sets its own (docs/scaling.md) "
+                      "for the fields that no flag and no --config file sets.")
     p.add_argument("--task", default=None, help="task name (see tasks.names()); default lift")
     p.add_argument("--physics", default=None, help=f"one of {', '.join(tasks.PHYSICS)}; default kinematic "
                    f"(mujoco for the OP3 tasks {', '.join(tasks.LOCOMOTION_TASKS)})")
-    p.add_argument("--recipe", default=None, choices=list(RECIPES),
-                   help="the learners' recipe (docs/scaling.md): cpu (32 envs, few samples per env step), parallel "
-                        "(batches that grow with the envs, 32 updates per iteration), paper (App. B.3); "
-                        "default cpu on a CPU, parallel on an accelerator")
-    p.add_argument("--num_envs", type=positive_int, default=None,
-                   help="default: the recipe's (CPU: 32, 1024 with --recipe parallel; accelerator: 4096)")
-    p.add_argument("--num_timesteps", type=positive_int, default=None, help="env steps (default: 256k on CPU, 20M on GPU)")
-    p.add_argument("--episode_length", type=positive_int, default=None)
-    p.add_argument("--seed", type=nonnegative_int, default=None, help="default 0")
     p.add_argument("--seeds", default=None,
                    help="several seeds trained together in one vmapped iteration, e.g. 0,1,2: each writes its own "
                         "run directory OUT/s<seed> (as --seed would); --resume --out OUT resumes them together")
@@ -74,23 +76,15 @@ def build_parser():
     p.add_argument("--skill_dir", default=None,
                    help="directory of your own skills (NAME.npz + NAME.json, as Skill.save writes them): a skill of "
                         "the set found there is loaded from it instead of --skill_source")
-    p.add_argument("--method", default=None, choices=list(methods.names()),
-                   help="; ".join(f"{m.name}: {m.help}" for m in methods.all_methods()) + "; README \"Baselines\"")
     p.add_argument("--finetune_from", default=None,
                    help="--method finetune: the network skill the new skill starts from (library name, or one in "
                         "--skill_dir); default the task's last useful skill, from the library")
-    p.add_argument("--eval_every", type=positive_int, default=None,
-                   help="iterations between evaluations (default: 20 evaluations per run)")
-    p.add_argument("--eval_episodes", type=positive_int, default=None, help="default 32")
     p.add_argument("--config", default=None, help="JSON file overriding TrainConfig fields, e.g. "
                    '{"unroll_length": 25, "scheduler": {"policy_warmup_updates": 1500}, "new_skill": {"crr_mode": "indicator"}}')
     p.add_argument("--out", default=None, help="run directory (must not exist unless --resume); "
                    "default runs/<task>-<method>-s<seed>-<time>")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in the existing --out from its latest checkpoint, with its config.json")
-    p.add_argument("--checkpoint_every", type=positive_int, default=None,
-                   help="env steps between checkpoints (default: at evaluations, at most once a minute, and at the "
-                        "end); the latest 2 are kept")
     p.add_argument("--video", action="store_true",
                    help="at the end, write DIR/new_skill.mp4 (or .gif without ffmpeg): one episode of the new skill "
                         "alone, rendered headless (MUJOCO_GL=egl, else osmesa)")
@@ -108,6 +102,12 @@ def build_parser():
     p.add_argument("--no-replay-checkpoint", dest="no_replay_checkpoint", action="store_true",
                    help="leave the replay buffer out of checkpoints (smaller; a resume then starts with an "
                         "empty buffer and is no longer identical to an uninterrupted run)")
+    config_flags.add_config_flags(p, RunConfig())
+    notes = {"method": "; ".join(f"{m.name}: {m.help}" for m in methods.all_methods()) + "; README \"Baselines\"",
+             "recipe": "cpu: 32 envs, few samples per env step; parallel: batches that grow with the envs, 32 "
+                       "updates per iteration; paper: App. B.3 (docs/scaling.md)",
+             "eval_every": "(default: 20 evaluations per run)"}
+    config_flags.add_config_flags(p, BASE_CONFIG, notes=notes, computed=("eval_every",))
     return p
 
 
@@ -179,20 +179,16 @@ def prepare_new(args, argv, num_devices: int = 1, write: bool = True):
     if a["skills"] not in skill_library.SET_NAMES:
         raise UsageError(f"unknown skill set {a['skills']!r}; valid: {', '.join(skill_library.SET_NAMES)}")
 
-    from parallel_skills import TrainConfig
-    from parallel_skills.config import dotted_names, learner_schedule, resolve
+    from parallel_skills.config import dotted_names, learner_schedule, nested, resolve
 
-    cfg = TrainConfig(eval_episodes=DEFAULTS["eval_episodes"])
-    file_data = {}
+    settings = run_settings(args)
+    cfg, file_data = BASE_CONFIG, {}
     if args.config:
         file_data = load_config_file(args.config)
         cfg = apply_config(cfg, file_data, f"config file {args.config}")
-    flags = {"recipe": args.recipe, "num_envs": args.num_envs, "method": args.method,
-             "eval_episodes": args.eval_episodes}
-    cfg = dataclasses.replace(cfg, **{k: v for k, v in flags.items() if v is not None})
+    flags = config_flags.given(args, TRAIN_FLAGS)
+    cfg = apply_config(cfg, nested(flags), "the command line")  # (rules relating fields; each value is parsed)
     method = cfg.method
-    if method not in methods.names():  # (TrainConfig validates it too)
-        raise UsageError(f"unknown method {method!r}; valid: {', '.join(methods.names())}")
     spec = methods.get(method)
     if args.finetune_from is not None and not spec.starts_from_skill:
         starting = " / ".join(m.name for m in methods.all_methods() if m.starts_from_skill)
@@ -209,7 +205,7 @@ def prepare_new(args, argv, num_devices: int = 1, write: bool = True):
     else:
         names = skill_library.skill_names(a["task"], a["skills"])
 
-    out = args.out or os.path.join("runs", f"{a['task']}-{method}-s{a['seed']}-{time.strftime('%Y%m%d-%H%M%S')}")
+    out = args.out or os.path.join("runs", f"{a['task']}-{method}-s{settings.seed}-{time.strftime('%Y%m%d-%H%M%S')}")
     if write and os.path.exists(out):
         raise UsageError(f"run directory {out} already exists; choose a new --out, or --resume it "
                          "(runs are never overwritten)")
@@ -219,20 +215,19 @@ def prepare_new(args, argv, num_devices: int = 1, write: bool = True):
     import jax
 
     on_cpu = jax.default_backend() == "cpu"
-    num_timesteps = args.num_timesteps or DEFAULT_TIMESTEPS["cpu" if on_cpu else "accelerator"]
+    num_timesteps = settings.num_timesteps or DEFAULT_TIMESTEPS["cpu" if on_cpu else "accelerator"]
+    given = dotted_names(file_data) + list(flags)
     try:
-        resolved, notes = resolve(cfg, given=dotted_names(file_data))  # (the recipe fills what the file leaves)
-    except ValueError as e:  # a field the file sets conflicts with the method
+        resolved, notes = resolve(cfg, given=given)  # (the recipe fills what the file and flags leave)
+    except ValueError as e:  # a field the file or a flag sets conflicts with the method
         raise UsageError(f"config file {args.config}: {e}" if args.config else str(e)) from None
-    if args.eval_every is not None:
-        eval_every = args.eval_every
-    elif "eval_every" in file_data:
+    if "eval_every" in given:
         eval_every = cfg.eval_every
     else:
         eval_every = max(1, round(num_timesteps / (resolved.num_envs * resolved.unroll_length) / 20))
     resolved = dataclasses.replace(resolved, eval_every=eval_every)
     _check_mesh(resolved, num_devices)
-    overrides = {} if args.episode_length is None else {"episode_length": args.episode_length}
+    overrides = {} if settings.episode_length is None else {"episode_length": settings.episode_length}
     env = tasks.make(a["task"], physics=a["physics"], **overrides)  # validates the overrides
     skill_dir = os.path.abspath(args.skill_dir) if args.skill_dir else None
     loaded = skill_library.load_skills(names, a["physics"], a["skill_source"], env.observation_size,
@@ -244,14 +239,19 @@ def prepare_new(args, argv, num_devices: int = 1, write: bool = True):
 
     run = RunRecord(
         command=_command(argv), task=a["task"], physics=a["physics"], skill_set=a["skills"],
-        skill_source=a["skill_source"], skill_dir=skill_dir, skills=names, seed=a["seed"],
-        num_timesteps=num_timesteps, episode_length=int(getattr(env, "episode_length", 0)) or args.episode_length,
-        checkpoint_every=args.checkpoint_every, replay_checkpoint=not args.no_replay_checkpoint,
+        skill_source=a["skill_source"], skill_dir=skill_dir, skills=names, seed=settings.seed,
+        num_timesteps=num_timesteps, episode_length=int(getattr(env, "episode_length", 0)) or settings.episode_length,
+        checkpoint_every=settings.checkpoint_every, replay_checkpoint=not args.no_replay_checkpoint,
         video=bool(args.video), train_config=dataclasses.asdict(resolved), auto=notes,
         learners=learner_schedule(resolved))
     if write:
         rundir.create(out, run)
     return out, run, resolved, env
+
+
+def run_settings(args) -> RunConfig:
+    """The ``RunConfig`` of the given flags (the dataclass's defaults for the rest)."""
+    return RunConfig(**config_flags.given(args, RUN_FLAGS))
 
 
 def _check_mesh(resolved, num_devices: int):
@@ -261,6 +261,24 @@ def _check_mesh(resolved, num_devices: int):
         check_divisible(resolved, num_devices)
     except ValueError as e:
         raise UsageError(str(e)) from None
+
+
+def resume_conflicts(args, run: RunRecord, resolved) -> dict:
+    """``{flag: (its value or None, the run's)}`` of the flags a ``--resume`` may only repeat: the
+    flags that are no config field, the ``RunConfig`` ones (but ``num_timesteps``, which extends)
+    and every ``TrainConfig`` flag (the run's resolved config holds each)."""
+    from parallel_skills.config import dotted_value
+
+    starts_from_skill = methods.get(resolved.method).starts_from_skill
+    pairs = {"task": (args.task, run.task), "physics": (args.physics, run.physics),
+             "skills": (args.skills, run.skill_set), "skill_source": (args.skill_source, run.skill_source),
+             "skill_dir": (os.path.abspath(args.skill_dir) if args.skill_dir else None, run.skill_dir),
+             "finetune_from": (args.finetune_from, run.skills[0] if starts_from_skill and run.skills else None)}
+    pairs.update({name: (value, getattr(run, name))
+                  for name, value in config_flags.given(args, RUN_FLAGS).items() if name != "num_timesteps"})
+    pairs.update({name: (value, dotted_value(resolved, name))
+                  for name, value in config_flags.given(args, TRAIN_FLAGS).items()})
+    return pairs
 
 
 def prepare_resume(args, num_devices: int = 1):
@@ -280,20 +298,10 @@ def prepare_resume(args, num_devices: int = 1):
     run = rundir.read_record(out, "cannot resume")
     resolved = run.config(f"{cfg_path} train_config")
 
-    starts_from_skill = methods.get(resolved.method).starts_from_skill
-    given = {"task": (args.task, run.task), "physics": (args.physics, run.physics),
-             "skills": (args.skills, run.skill_set), "skill_source": (args.skill_source, run.skill_source),
-             "skill_dir": (os.path.abspath(args.skill_dir) if args.skill_dir else None, run.skill_dir),
-             "seed": (args.seed, run.seed),
-             "method": (args.method, resolved.method), "recipe": (args.recipe, resolved.recipe),
-             "finetune_from": (args.finetune_from, run.skills[0] if starts_from_skill and run.skills else None),
-             "num_envs": (args.num_envs, resolved.num_envs), "episode_length": (args.episode_length, run.episode_length),
-             "eval_every": (args.eval_every, resolved.eval_every),
-             "eval_episodes": (args.eval_episodes, resolved.eval_episodes),
-             "checkpoint_every": (args.checkpoint_every, run.checkpoint_every)}
-    for name, (value, stored) in given.items():
+    for name, (value, stored) in resume_conflicts(args, run, resolved).items():
         if value is not None and value != stored:
-            raise UsageError(f"--{name} {value} conflicts with {cfg_path} ({name}={json.dumps(stored)}); "
+            raise UsageError(f"--{name} {config_flags.flag_text(value)} conflicts with {cfg_path} "
+                             f"({name}={json.dumps(stored)}); "
                              "--resume continues a run with its own config: drop the flag")
     if args.no_replay_checkpoint and run.replay_checkpoint:
         raise UsageError(f"--no-replay-checkpoint conflicts with {cfg_path} (replay_checkpoint=true); "
@@ -315,11 +323,11 @@ def prepare_resume(args, num_devices: int = 1):
                and not (run.skill_dir and os.path.isfile(os.path.join(run.skill_dir, f"{n}.npz")))]
     if unknown and run.skill_source == "scripted":  # (library skills are checked when loaded)
         raise UsageError(f"cannot resume: {cfg_path} names skills {unknown} this version does not have")
-    budget = int(run.num_timesteps)
-    if args.num_timesteps is not None and args.num_timesteps < budget:
-        raise UsageError(f"--num_timesteps {args.num_timesteps} is below the budget of {out} ({cfg_path}: "
+    budget, asked = int(run.num_timesteps), run_settings(args).num_timesteps
+    if asked is not None and asked < budget:
+        raise UsageError(f"--num_timesteps {asked} is below the budget of {out} ({cfg_path}: "
                          f"num_timesteps={budget}); --resume can extend a run, not shorten it")
-    target = max(budget, args.num_timesteps or 0)
+    target = max(budget, asked or 0)
     exported = rundir.exported_budget(out)
     if exported is not None and exported >= target:
         raise UsageError(f"run {out} is complete (its export.json is at {exported} env steps); nothing to resume; "
@@ -357,7 +365,7 @@ def prepare_seeds(args, argv, num_devices: int = 1):
     seeds = _parse_seeds(args.seeds)
     if args.seed is not None:
         raise UsageError("--seed and --seeds: give one of them")
-    out = args.out or os.path.join("runs", f"{args.task or DEFAULTS['task']}-{args.method or DEFAULTS['method']}-"
+    out = args.out or os.path.join("runs", f"{args.task or DEFAULTS['task']}-{args.method or BASE_CONFIG.method}-"
                                    f"seeds{'_'.join(map(str, seeds))}-{time.strftime('%Y%m%d-%H%M%S')}")
     if os.path.exists(out):
         raise UsageError(f"run directory {out} already exists; choose a new --out, or --resume it "
