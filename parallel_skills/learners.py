@@ -34,7 +34,7 @@ or, with ``target_tau`` > 0, Polyak averages updated after every step (``optax.i
 
 from __future__ import annotations
 
-from typing import Callable, Dict, NamedTuple, Optional, Tuple
+from typing import Callable, Dict, NamedTuple, Optional, Tuple, Union
 
 import flax
 import jax
@@ -106,6 +106,37 @@ def learner_step(state, grads, config, update_duals: bool, update_critic: bool =
         dual_params=new_dual, dual_opt_state=dual_opt_state, steps=steps)
 
 
+# The MPO dual variables (log-parameters; positive via ``hcmpo.positive``). Fields in alphabetical
+# order: the leaves flatten in the order of the dicts they replace, and a checkpoint names them alike.
+@flax.struct.dataclass
+class SchedulerDuals:
+    """The scheduler's duals: the E-step temperature η and the M-step KL multiplier α (Eq. 4)."""
+
+    log_alpha: jax.Array
+    log_temperature: jax.Array
+
+    @classmethod
+    def initial(cls, config: SchedulerConfig) -> "SchedulerDuals":
+        return cls(log_alpha=jnp.asarray(config.init_log_alpha, jnp.float32),
+                   log_temperature=jnp.asarray(config.init_log_temperature, jnp.float32))
+
+
+@flax.struct.dataclass
+class NewSkillDuals:
+    """The new skill's Gaussian-MPO duals (used only when mpo_alpha < 1): the temperature and the
+    mean's and std's KL multipliers."""
+
+    log_alpha_mean: jax.Array
+    log_alpha_stddev: jax.Array
+    log_temperature: jax.Array
+
+    @classmethod
+    def initial(cls, config: NewSkillConfig) -> "NewSkillDuals":
+        return cls(log_alpha_mean=jnp.asarray(config.mpo_init_log_alpha_mean, jnp.float32),
+                   log_alpha_stddev=jnp.asarray(config.mpo_init_log_alpha_stddev, jnp.float32),
+                   log_temperature=jnp.asarray(config.mpo_init_log_temperature, jnp.float32))
+
+
 @flax.struct.dataclass
 class LearnerState:
     """A learner's networks, their targets, optimiser states and MPO duals (both learners)."""
@@ -116,9 +147,7 @@ class LearnerState:
     target_critic_params: Params
     policy_opt_state: optax.OptState
     critic_opt_state: optax.OptState
-    # Scheduler: {"log_temperature", "log_alpha"}; new skill: {"log_temperature", "log_alpha_mean",
-    # "log_alpha_stddev"} (only used when mpo_alpha < 1).
-    dual_params: Dict[str, jnp.ndarray]
+    dual_params: Union[SchedulerDuals, NewSkillDuals]
     dual_opt_state: optax.OptState
     steps: jnp.ndarray  # int32 scalar: learner updates done.
 
@@ -177,9 +206,8 @@ def scheduler_learner_init(key: jax.Array, obs_size: int, num_skills_total: int,
     policy, critic = scheduler_networks(num_skills_total, config)
     obs = jnp.zeros((1, obs_size), jnp.float32)
     idx = jnp.zeros((1, 1), jnp.int32)
-    dual_params = {"log_temperature": jnp.asarray(config.init_log_temperature, jnp.float32),
-                   "log_alpha": jnp.asarray(config.init_log_alpha, jnp.float32)}
-    return _learner_init(key, policy, critic, (obs,), (obs, idx + 1, idx, idx), dual_params, config)
+    return _learner_init(key, policy, critic, (obs,), (obs, idx + 1, idx, idx), SchedulerDuals.initial(config),
+                         config)
 
 
 class SchedulerTargets(NamedTuple):
@@ -283,8 +311,8 @@ def scheduler_loss(params, steps, batch: Transition, labels: SchedulerLabels, ta
     q = read_pairs(table[:, :n_labels], labels.skill, labels.k_idx, lengths.shape[0])  # [B, L]: Q(s, c, i, k)
     critic_loss = masked_mean(0.5 * jnp.square(q - targets.y), labels.weight)
     q_fresh = jax.lax.stop_gradient(pair_values(table[:, n_labels:], lengths.shape[0]))  # Q(s, c=k, i, k), all pairs
-    temperature = positive(dual_params["log_temperature"])
-    alpha = positive(dual_params["log_alpha"])
+    temperature = positive(dual_params.log_temperature)
+    alpha = positive(dual_params.log_alpha)
     weights = e_step_weights(q_fresh, targets.log_prior, temperature)
     loss_temperature = temperature_dual_loss(temperature, q_fresh, targets.log_prior, config.epsilon, dmask)
     li, lk = policy.apply(policy_params, batch.obs)
@@ -378,10 +406,7 @@ def new_skill_learner_init(key: jax.Array, obs_size: int, action_size: int,
     policy, critic = new_skill_networks(action_size, config)
     obs = jnp.zeros((1, obs_size), jnp.float32)
     act = jnp.zeros((1, action_size), jnp.float32)
-    dual_params = {"log_temperature": jnp.asarray(config.mpo_init_log_temperature, jnp.float32),
-                   "log_alpha_mean": jnp.asarray(config.mpo_init_log_alpha_mean, jnp.float32),
-                   "log_alpha_stddev": jnp.asarray(config.mpo_init_log_alpha_stddev, jnp.float32)}
-    return _learner_init(key, policy, critic, (obs,), (obs, act), dual_params, config)
+    return _learner_init(key, policy, critic, (obs,), (obs, act), NewSkillDuals.initial(config), config)
 
 
 class SkillMixture(NamedTuple):
@@ -509,15 +534,15 @@ def mpo_baseline_loss(mean, std, targets: NewSkillTargets, q_mpo, dual_params, w
         return jnp.zeros(()), {}
     return gaussian_mpo_loss(
         mean, std, targets.mpo_mean, targets.mpo_std, targets.mpo_actions, q_mpo,
-        positive(dual_params["log_temperature"]), positive(dual_params["log_alpha_mean"]),
-        positive(dual_params["log_alpha_stddev"]), config.mpo_epsilon, config.mpo_epsilon_mean,
+        positive(dual_params.log_temperature), positive(dual_params.log_alpha_mean),
+        positive(dual_params.log_alpha_stddev), config.mpo_epsilon, config.mpo_epsilon_mean,
         config.mpo_epsilon_stddev, weight)
 
 
 def kl_reg_baseline_loss(mean, std, targets: NewSkillTargets, q_mpo, dual_params, weight, config: NewSkillConfig,
                          teacher: SkillMixture) -> Tuple[jax.Array, Dict[str, jax.Array]]:
     """MPO regularised to the skills' mixture π₀ (samples of π₀ in ``targets.mpo_actions``)."""
-    temperature = positive(dual_params["log_temperature"])
+    temperature = positive(dual_params.log_temperature)
     log_prior = mixture_log_prob(teacher.means, teacher.std, targets.mpo_actions)  # [B, n_mpo]
     weights, loss_temperature = prior_e_step(q_mpo, log_prior, log_prior, temperature, config.mpo_epsilon, weight)
     loss, stats = kl_reg_mpo_loss(mean, std, targets.mpo_actions, weights, weight)

@@ -102,8 +102,8 @@ def rhpo_loss(params, batch: Transition, skills: SkillMixture, targets: RHPOTarg
                                       targets.actions), -1)
         loss_mpo, mpo_stats = rhpo_mpo_loss(
             logits, mean, std, targets.logits, targets.mean, targets.std, skills.means, skills.std, targets.actions,
-            q_mpo, positive(duals["log_temperature"]), positive(cat_duals["log_alpha"]),
-            positive(duals["log_alpha_mean"]), positive(duals["log_alpha_stddev"]), config.mpo_epsilon,
+            q_mpo, positive(duals.log_temperature), positive(cat_duals.log_alpha),
+            positive(duals.log_alpha_mean), positive(duals.log_alpha_stddev), config.mpo_epsilon,
             sched_config.epsilon_kl, config.mpo_epsilon_mean, config.mpo_epsilon_stddev, weight)
         policy_loss = config.mpo_alpha * loss_crr + (1.0 - config.mpo_alpha) * loss_mpo
         stats.update({k: v for k, v in mpo_stats.items() if k != "rhpo_new_component_prob"})

@@ -78,3 +78,24 @@ def test_checkpoint_written_before_the_pending_field_restores(tmp_path):
     restored, _ = ck.restore(abstract_training_state(env, skills, cfg, 0)[0])
     ck.close()
     _assert_same(restored, state)
+
+
+def test_checkpoint_with_dict_duals_restores(tmp_path):
+    """Checkpoints written while the MPO duals were dicts ({"log_temperature", ...}) restore into
+    the typed duals (learners.SchedulerDuals / NewSkillDuals): orbax names the leaves alike."""
+    from parallel_skills.learners import NewSkillDuals, SchedulerDuals
+
+    env, skills, cfg, state = _setup(1)
+    typed = lambda x: isinstance(x, (SchedulerDuals, NewSkillDuals))  # noqa: E731
+    as_dicts = lambda tree: jax.tree.map(  # noqa: E731
+        lambda x: {f.name: getattr(x, f.name) for f in dataclasses.fields(x)} if typed(x) else x, tree, is_leaf=typed)
+    old = state.replace(**{name: getattr(state, name).replace(dual_params=as_dicts(getattr(state, name).dual_params),
+                                                               dual_opt_state=as_dicts(getattr(state, name).dual_opt_state))
+                           for name in ("scheduler", "new_skill")})
+    assert isinstance(old.scheduler.dual_params, dict) and isinstance(old.new_skill.dual_opt_state[0].mu, dict)
+    ck = Checkpointer(str(tmp_path))
+    ck.save(old, {"iteration": 1})
+    restored, _ = ck.restore(abstract_training_state(env, skills, cfg, 0)[0])
+    ck.close()
+    assert isinstance(restored.scheduler.dual_params, SchedulerDuals)
+    _assert_same(restored, state)

@@ -110,8 +110,8 @@ def test_scheduler_no_decision_rows_gives_zero_policy_loss(sched_run):
     for a, b in zip(jax.tree_util.tree_leaves(new_state.policy_params),
                     jax.tree_util.tree_leaves(state.policy_params)):
         np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(new_state.dual_params["log_temperature"], SCFG.init_log_temperature)
-    np.testing.assert_array_equal(new_state.dual_params["log_alpha"], SCFG.init_log_alpha)
+    np.testing.assert_array_equal(new_state.dual_params.log_temperature, SCFG.init_log_temperature)
+    np.testing.assert_array_equal(new_state.dual_params.log_alpha, SCFG.init_log_alpha)
 
 
 def test_scheduler_policy_moves_towards_best_pair(sched_run):
@@ -210,7 +210,7 @@ def test_new_skill_mpo_mix_runs():
     new_state, metrics = run(state, batch, jax.random.PRNGKey(2))
     assert "mpo_kl_mean" in metrics
     assert _finite(metrics) and _finite(new_state)
-    assert float(new_state.dual_params["log_temperature"]) != NCFG_MIX.mpo_init_log_temperature
+    assert float(new_state.dual_params.log_temperature) != NCFG_MIX.mpo_init_log_temperature
 
 
 def test_vmap_over_seeds():
