@@ -71,6 +71,14 @@ class Variant:
     run_args: tuple = ()  # extra training.run flags (a skill set)
     kind: str = "method"  # "method" (a method or one of its settings), "ablation" or "skill_set"
 
+    @property
+    def is_reference(self) -> bool:
+        """Whether this is SkillS with its defaults: the curve the ablations and skill sets are drawn against."""
+        from parallel_skills import methods
+
+        return (self.kind == "method" and methods.get(self.method) is methods.SKILLS
+                and not self.config and not self.run_args)
+
 
 def setting_label(key: str) -> str:
     """A setting's part of a variant's directory name: the field's name (``new_skill.mpo_alpha`` ->
@@ -269,12 +277,12 @@ def write_results(out: str, tasks: list, variants: list, seeds: list, budgets: d
             lines.append("")
             groups = [(_label(v, len(found[v.name][0])), [Run(d) for d in found[v.name][0]]) for v in best.values()]
             written.append(plot_curves(groups, os.path.join(out, f"{task}_new_skill.png")))
-        base = [v for v in variants if v.name == "skills" and v.name in found]
+        base = [v for v in variants if v.is_reference and v.name in found]
         for kind, suffix in (("ablation", "ablations"), ("skill_set", "skill_sets")):
             others = [v for v in variants if v.kind == kind and v.name in found]
             if not others:
                 continue
-            groups = [(_label(v, len(found[v.name][0])) if v.name == "skills" else
+            groups = [(_label(v, len(found[v.name][0])) if v.is_reference else
                        f"{v.name}, {len(found[v.name][0])} seed{'s' if len(found[v.name][0]) > 1 else ''}",
                        [Run(d) for d in found[v.name][0]]) for v in base + others]
             written.append(plot_curves(groups, os.path.join(out, f"{task}_{suffix}.png")))
