@@ -34,6 +34,47 @@ def best_of(fn, *args, repeats: int = 5) -> float:
     return best
 
 
+def breakdown(env, skills, cfg, fill: int = 4, eval_every: int = 8, repeats: int = 5, report=None) -> dict:
+    """Seconds per iteration of each part at the resolved config ``cfg``, on a state whose replay
+    ``fill`` iterations filled: ``{"acting + insert", "scheduler updates" (when the method learns
+    it), "new-skill updates", "evaluation / <eval_every>", "whole iteration"}``. ``report(parts)``,
+    if given, is called after each part with the parts measured so far."""
+    trainer = make_trainer(env, skills, cfg)
+    sc, nc = cfg.scheduler, cfg.new_skill
+    replay = trainer.replay
+    state = jax.jit(trainer.init)(jax.random.PRNGKey(0))
+    step = jax.jit(lambda s: trainer.collect_insert(s, s.key)[0].replace(key=jax.random.fold_in(s.key, 1)))
+    for _ in range(fill):
+        state = step(state)
+
+    def sched(ts, key):
+        return run_learner(learners.scheduler_learner_update,
+                           lambda k: replay.sample_scheduler(ts.replay, ts.normalizer, k), sc, ts.scheduler, key,
+                           trainer.scheduler_updates, True)[0]
+
+    def new(ts, key):
+        return run_learner(learners.new_skill_learner_update,
+                           lambda k: replay.sample_new_skill(ts.replay, ts.normalizer, k), nc, ts.new_skill, key,
+                           trainer.new_skill_updates, True)[0]
+
+    key = jax.random.PRNGKey(1)
+    measures = [("acting + insert", lambda: best_of(jax.jit(lambda s: trainer.collect_insert(s, key)[0]), state,
+                                                    repeats=repeats))]
+    if trainer.scheduler_updates:
+        measures.append(("scheduler updates", lambda: best_of(jax.jit(sched), state, key, repeats=repeats)))
+    measures.append(("new-skill updates", lambda: best_of(jax.jit(new), state, key, repeats=repeats)))
+    evaluate = make_evaluation(env, trainer, int(env.episode_length), 0)
+    measures.append((f"evaluation / {eval_every}", lambda: best_of(lambda s: evaluate(s, 0), state, repeats=2) / eval_every))
+    measures.append(("whole iteration", lambda: best_of(jax.jit(lambda s: trainer.iteration(s)[0]), state,
+                                                        repeats=repeats)))
+    parts = {}
+    for name, measure in measures:
+        parts[name] = measure()
+        if report is not None:
+            report(dict(parts))
+    return parts
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--task", default="lift")
@@ -54,33 +95,8 @@ def main():
             data = json.load(f)
         cfg = from_dict(cfg, data, args.config)
     cfg, _ = resolve(cfg, given=dotted_names(data))
-    trainer = make_trainer(env, skills, cfg)
-    sc, nc = cfg.scheduler, cfg.new_skill
-    replay = trainer.replay
-    state = jax.jit(trainer.init)(jax.random.PRNGKey(0))
-    step = jax.jit(lambda s: trainer.collect_insert(s, s.key)[0].replace(key=jax.random.fold_in(s.key, 1)))
-    for _ in range(args.fill):
-        state = step(state)
-
-    def sched(ts, key):
-        return run_learner(learners.scheduler_learner_update,
-                           lambda k: replay.sample_scheduler(ts.replay, ts.normalizer, k), sc, ts.scheduler, key,
-                           trainer.scheduler_updates, True)[0]
-
-    def new(ts, key):
-        return run_learner(learners.new_skill_learner_update,
-                           lambda k: replay.sample_new_skill(ts.replay, ts.normalizer, k), nc, ts.new_skill, key,
-                           trainer.new_skill_updates, True)[0]
-
-    key = jax.random.PRNGKey(1)
-    parts = {"acting + insert": best_of(jax.jit(lambda s: trainer.collect_insert(s, key)[0]), state)}
-    if trainer.scheduler_updates:
-        parts["scheduler updates"] = best_of(jax.jit(sched), state, key)
-    parts["new-skill updates"] = best_of(jax.jit(new), state, key)
-    evaluate = make_evaluation(env, trainer, int(env.episode_length), 0)
-    parts[f"evaluation / {args.eval_every}"] = best_of(lambda s: evaluate(s, 0), state, repeats=2) / args.eval_every
-
-    whole = best_of(jax.jit(lambda s: trainer.iteration(s)[0]), state)
+    parts = breakdown(env, skills, cfg, args.fill, args.eval_every)
+    whole = parts.pop("whole iteration")
     total = sum(parts.values())
     print(f"{args.task}, recipe {cfg.recipe}, {cfg.num_envs} envs, backend {jax.default_backend()} "
           f"({jax.device_count()} device(s))")

@@ -6,15 +6,30 @@ warp) and ``mujoco`` (classic MuJoCo C engine called from JAX through a host cal
 
 The OP3 locomotion tasks (``LOCOMOTION_TASKS``: ``getup_and_walk``, ``op3_getup``, ``op3_walk``,
 ``goal_scoring``; docs/locomotion.md) exist for ``mujoco`` and ``mjx`` and need the extra ``locomotion``.
+
+``warp`` alone needs the package warp-lang (the extra ``warp``); everything else imports and runs
+without it.
 """
 
 from __future__ import annotations
+
+import importlib.util
 
 from tasks.manipulation import task_defs
 
 PHYSICS = ("kinematic", "mjx", "warp", "mujoco")
 LOCOMOTION_PHYSICS = ("mujoco", "mjx")
 LOCOMOTION_TASKS = ("getup_and_walk", "op3_getup", "op3_walk", "goal_scoring")
+WARP_MISSING = ("physics 'warp' needs the package warp-lang, which is not installed "
+                "(pip install 'parallel-skills[warp]'); the other physics run without it")
+
+
+def warp_installed() -> bool:
+    """Whether the package warp-lang (module ``warp``) can be imported, without importing it."""
+    try:
+        return importlib.util.find_spec("warp") is not None
+    except (ImportError, ValueError):
+        return False
 
 
 def names() -> list[str]:
@@ -36,6 +51,8 @@ def make(name: str, physics: str = "kinematic", **overrides):
         from tasks.manipulation.kinematic import KinematicBlocks
 
         return KinematicBlocks(name, **overrides)
+    if physics == "warp" and not warp_installed():
+        raise ValueError(WARP_MISSING)
     if physics in ("mjx", "warp"):
         try:
             from tasks.manipulation.mjx_env import make_mjx_env
