@@ -76,7 +76,7 @@ def test_success_at_budget_fractions_and_results(tmp_path):
     variants = [Variant("skills", "skills", {}), Variant("scratch", "scratch", {})]
     paths = paper.write_results(out, ["lift"], variants, [0, 1], {"lift": 400})
     table = open(os.path.join(out, "results.md")).read()
-    assert "| skills | 0.10 ± 0.00 | 0.30 ± 0.00 | 0.80 ± 0.10 | 2 |" in table
+    assert "| skills | 0.10 ± 0.00 | 0.30 ± 0.00 | 0.80 ± 0.14 | 2 |" in table
     assert "| scratch | – | – | – | 0 | – |" in table
     assert any(p.endswith("lift_new_skill.png") for p in paths)
 

@@ -241,10 +241,12 @@ def write_results(out: str, tasks: list, variants: list, seeds: list, budgets: d
     them); OUT/results.md (every variant). Returns the files written."""
     import numpy as np
 
+    from training.experiments.results import mean_std
     from training.plot import Run, plot_curves
 
     lines = ["# Experiment matrix: the new skill alone (success over the evaluation episodes)", "",
-             f"Seeds {', '.join(map(str, seeds))}; mean ± std over the seeds that reached the budget fraction.", ""]
+             f"Seeds {', '.join(map(str, seeds))}; mean ± sample std (n − 1) over the seeds that reached the budget "
+             "fraction (one seed: its value).", ""]
     written, total_seconds = [], 0.0
     for task in tasks:
         budget = budgets[task]
@@ -264,7 +266,7 @@ def write_results(out: str, tasks: list, variants: list, seeds: list, budgets: d
             for f in FRACTIONS:
                 vals = [success_at(r, f * budget) for r in rows if r[-1]["env_steps"] >= f * budget]
                 vals = [x for x in vals if x is not None]
-                cells.append(f"{np.mean(vals):.2f} ± {np.std(vals):.2f}" if vals else "–")
+                cells.append(mean_std(vals) if vals else "–")
             walls = [r[-1]["wall_time"] / 60 for r in rows if isinstance(r[-1].get("wall_time"), float)]
             total_seconds += 60 * sum(walls)
             wall = f"{np.mean(walls):.1f}" if walls else "–"
@@ -328,6 +330,9 @@ def main(argv=None):
     p.add_argument("--archive", default=None,
                    help="also copy each run's metrics.csv, config.json and export.json (machine paths taken out: "
                         "training.archive) to ARCHIVE/<task>/<variant>/s<seed>/, e.g. docs/results/paper_runs")
+    p.add_argument("--results", default=None,
+                   help="with --archive: rewrite RESULTS/<task>.md from the whole archive of each task "
+                        "(training.experiments.results), e.g. docs/results")
     args = p.parse_args(argv)
 
     def plan():
@@ -362,6 +367,8 @@ def main(argv=None):
             raise UsageError(f"no budget for {', '.join(missing)}: give --budgets {missing[0]}=N")
         if args.jobs < 1:
             raise UsageError(f"--jobs must be a positive integer, got {args.jobs}")
+        if args.results and not args.archive:
+            raise UsageError("--results needs --archive: the tables are rebuilt from the archived runs")
         return task_list, variants, seeds, budgets
 
     task_list, variants, seeds, budgets = main_guard(plan)
@@ -396,6 +403,11 @@ def main(argv=None):
     if args.archive:
         for path in archive_runs(args.out, args.archive, task_list, variants, seeds):
             print(f"archived: {path}")
+    if args.results:
+        from training.experiments.results import write_tables
+
+        for path in write_tables(args.archive, args.results, task_list):
+            print(f"written: {path}")
     if failed:
         print(f"{len(failed)} run(s) failed; their logs: {', '.join(failed)}", file=sys.stderr)
         sys.exit(1)
