@@ -416,16 +416,20 @@ def main(argv=None) -> int:
               "smoke": args.smoke, "command": " ".join(["python", "bench/accelerator.py"] + (argv or sys.argv[1:])),
               "parts": {}}
 
+    def write():
+        with open(os.path.join(args.out, "accelerator.json"), "w") as f:
+            json.dump(report, f, indent=1)
+
     def on_result(name, result):
         report["parts"][name] = result
         report["wall_s"] = time.perf_counter() - started
-        with open(os.path.join(args.out, "accelerator.json"), "w") as f:
-            json.dump(report, f, indent=1)
+        write()  # after every part: a run cut short keeps what it measured
         print(f"--- {name}: {result['status']} after {result['wall_s']:.1f} s" +
               (f" ({result.get('error')})" if result["status"] == "failed" else ""), flush=True)
 
     run_parts(names, sizes, caps, args.out, args.jobs or (2 if args.smoke else 1), on_result)
-    report["parts"] = {n: report["parts"][n] for n in names}
+    report["parts"] = {n: report["parts"][n] for n in names}  # parts finish out of order with --jobs 2
+    write()
     first = next((r for r in report["parts"].values() if r.get("device")), {})
     print(f"\n{first.get('device', '?')} ({first.get('backend', '?')}), jax {first.get('jax', '?')}; "
           f"{report['wall_s']:.0f} s in all")

@@ -146,6 +146,18 @@ class Distributed:
         return self.process_id == 0
 
 
+def agreed(flag: bool) -> bool:
+    """Process 0's ``flag`` in every process (itself with one process). A host-side decision that
+    leads to collectives (a checkpoint: orbax saves through every process) must be the same in
+    all of them; one taken from each process's own wall clock is not."""
+    if jax.process_count() == 1:
+        return bool(flag)
+    import numpy as np
+    from jax.experimental import multihost_utils
+
+    return bool(multihost_utils.broadcast_one_to_all(np.int32(bool(flag))))
+
+
 def initialize(coordinator: Optional[str] = None, num_processes: Optional[int] = None,
                process_id: Optional[int] = None, timeout_seconds: int = DEFAULT_TIMEOUT_SECONDS,
                auto: bool = False) -> Distributed:

@@ -61,11 +61,12 @@ class GaussianSkillParams:
 
 
 def gaussian_mlp_apply(action_size: int, hidden: Sequence[int], sampled: bool = False,
-                       min_std: Optional[float] = None):
+                       min_std: Optional[float] = None, std_scale: float = 1.0):
     """``apply(params: GaussianSkillParams, obs [O], key) -> action [A]`` of a Gaussian-MLP skill:
     observations normalised with the run's statistics (clipped), then the policy's mean action, or
     with ``sampled`` an action drawn from its Gaussian (``networks.sample_action``; ``min_std`` its
-    std floor, default ``GaussianPolicy.min_std``)."""
+    std floor, default ``GaussianPolicy.min_std``) with its std times ``std_scale`` (1: the policy's
+    own Gaussian, as the trainer collects; 0 would be the mean)."""
     from parallel_skills import networks
 
     kwargs = {} if min_std is None else {"min_std": float(min_std)}
@@ -74,7 +75,7 @@ def gaussian_mlp_apply(action_size: int, hidden: Sequence[int], sampled: bool = 
     def apply(p: GaussianSkillParams, obs, key):
         x = jnp.clip((obs - p.obs_mean) / p.obs_std, -CLIP, CLIP)
         mean, std = net.apply(p.policy, x)
-        return networks.sample_action(mean, std, key) if sampled else mean
+        return networks.sample_action(mean, std * std_scale, key) if sampled else mean
 
     return apply
 

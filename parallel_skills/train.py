@@ -639,8 +639,9 @@ def _host_loop(trainer: Trainer, iteration, state, num_seeds: Optional[int], eva
                 metrics[j].update(env_steps=int(one.env_steps), wall_time=time.perf_counter() - t0, iteration=it + 1)
                 if progress_fns[j] is not None:
                     progress_fns[j](int(one.env_steps), metrics[j])
-        spaced = time.perf_counter() - last_checkpoint >= checkpoint_min_seconds
-        if _checkpoint_due(it, spi, checkpoint_every, evaluated and spaced, last) and any(checkpoint_fns):
+        # (Only at evaluations: the agreement across processes is a collective.)
+        spaced = evaluated and sharding.agreed(time.perf_counter() - last_checkpoint >= checkpoint_min_seconds)
+        if _checkpoint_due(it, spi, checkpoint_every, spaced, last) and any(checkpoint_fns):
             last_checkpoint = time.perf_counter()
             for j, i in enumerate(seeds):
                 if checkpoint_fns[j] is not None:

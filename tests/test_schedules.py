@@ -160,5 +160,18 @@ def test_new_skill_sampled_actions_draw_from_its_gaussian(tmp_path):
     mean, std = net.apply(params["policy"], jnp.clip(obs, -10.0, 10.0))
     np.testing.assert_allclose(sampled.apply(sampled.params, obs, k1), networks.sample_action(mean, std, k1), atol=1e-6)
     assert not np.allclose(sampled.apply(sampled.params, obs, k1), sampled.apply(sampled.params, obs, k2))
+    # --new_skill_std_scale: the same Gaussian with its std scaled (0: the mean action).
+    tenth = S.load_new_skill(str(tmp_path), env, "sampled", std_scale=0.1)
+    np.testing.assert_allclose(tenth.apply(tenth.params, obs, k1), networks.sample_action(mean, 0.1 * std, k1),
+                               atol=1e-6)
+    zero = S.load_new_skill(str(tmp_path), env, "sampled", std_scale=0.0)
+    np.testing.assert_allclose(zero.apply(zero.params, obs, k1), jnp.clip(mean, -1.0, 1.0), atol=1e-6)
     with pytest.raises(UsageError, match="--new_skill_actions"):
         S.load_new_skill(str(tmp_path), env, "greedy")
+
+
+def test_new_skill_std_scale_bad_input_is_one_line(capsys):
+    _fails(["--task", "lift", "--new_skill_std_scale", "-0.5", "lift_green"], capsys, "--new_skill_std_scale",
+           "≥ 0")
+    _fails(["--task", "lift", "--new_skill_std_scale", "nan", "lift_green"], capsys, "--new_skill_std_scale")
+    _fails(["--task", "lift", "--new_skill_std_scale", "0.3", "lift_green"], capsys, "--new_skill_actions sampled")

@@ -79,9 +79,15 @@ def test_two_processes_train_together_and_process_0_alone_writes(tmp_path):
         cwd = tmp_path / f"cwd{i}"  # each process's own working directory: nothing may land there
         cwd.mkdir()
         cwds.append(cwd)
-        cmd = [sys.executable, "-m", "training.run", "--config", str(cfg), "--num_timesteps", "60", "--eval_every",
-               "1", "--out", str(out), "--coordinator", f"127.0.0.1:{port}", "--num_processes", "2",
-               "--process_id", str(i), "--coordinator_timeout", "120"]
+        args = ["--config", str(cfg), "--num_timesteps", "60", "--eval_every", "1", "--out", str(out),
+                "--coordinator", f"127.0.0.1:{port}", "--num_processes", "2", "--process_id", str(i),
+                "--coordinator_timeout", "120"]
+        # The two processes' wall clocks disagree about whether a checkpoint is due (process 0: at
+        # every evaluation; process 1: only at the end), as they may on a loaded machine: the
+        # checkpoints are collectives, so the processes must take process 0's decision.
+        spacing = 0.0 if i == 0 else 1e9
+        cmd = [sys.executable, "-c", "import sys; import training.run_files as f; "
+               f"f.CHECKPOINT_MIN_SECONDS = {spacing}; import training.run as r; sys.exit(r.main({args!r}))"]
         procs.append(subprocess.Popen(cmd, cwd=str(cwd), env=_env(1), stdout=subprocess.PIPE,
                                       stderr=subprocess.PIPE, text=True))
     results = [p.communicate(timeout=840) for p in procs]

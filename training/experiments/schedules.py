@@ -292,12 +292,13 @@ def make_rollout(env, skills, schedule: Schedule, num_envs: int, steps: int, noi
 NEW_SKILL_ACTIONS = ("mean", "sampled")  # --new_skill_actions
 
 
-def load_new_skill(path, env, actions: str = "mean"):
+def load_new_skill(path, env, actions: str = "mean", std_scale: float = 1.0):
     """``--new_skill`` (a ``training.run`` directory or a ``new_skill.npz``) as a ``Skill`` named
     ``NEW_SKILL`` without collection noise, acting with its mean action (``actions="mean"``, its
     evaluation) or with actions sampled from its Gaussian (``"sampled"``: clip(mean + std·ε, −1, 1),
     as the trainer collects with it; the std floor is the run's ``new_skill.min_std`` from the
-    ``config.json`` beside the file, else ``NewSkillConfig.min_std``). UsageError (one line) when
+    ``config.json`` beside the file, else ``NewSkillConfig.min_std``; ``std_scale`` multiplies the
+    std, e.g. 0.1 for a tenth of the policy's noise). UsageError (one line) when
     not given or not a new skill of this task's sizes."""
     from parallel_skills.skills import Skill
 
@@ -317,7 +318,8 @@ def load_new_skill(path, env, actions: str = "mean"):
 
         min_std = run_min_std(os.path.dirname(os.path.abspath(file)))
         skill = dataclasses.replace(skill, apply=gaussian_mlp_apply(skill.metadata["action_size"], skill.metadata["hidden"],
-                                                                    sampled=True, min_std=min_std))
+                                                                    sampled=True, min_std=min_std,
+                                                                    std_scale=std_scale))
     return skill
 
 
@@ -382,6 +384,8 @@ def main(argv=None):
                    help="a trained new skill (a training.run directory or its new_skill.npz), step name 'new'")
     p.add_argument("--new_skill_actions", default="mean", choices=NEW_SKILL_ACTIONS,
                    help="the new skill's actions: mean (its evaluation) or sampled (as the trainer collects)")
+    p.add_argument("--new_skill_std_scale", type=float, default=1.0,
+                   help="with --new_skill_actions sampled: the Gaussian's std times this (1: as collected)")
     p.add_argument("--probes", default="", help="comma-separated success tests to report per schedule "
                    "(skills' own tasks or sparse tasks, as for NAME:until)")
     p.add_argument("--json", default=None, help="write the figures to this file")
@@ -393,6 +397,10 @@ def main(argv=None):
     seeds = parse_seeds(args.seeds)
     if not (np.isfinite(args.noise) and args.noise >= 0):
         raise UsageError(f"--noise must be a finite number ≥ 0, got {args.noise}")
+    if not (np.isfinite(args.new_skill_std_scale) and args.new_skill_std_scale >= 0):
+        raise UsageError(f"--new_skill_std_scale must be a finite number ≥ 0, got {args.new_skill_std_scale}")
+    if args.new_skill_std_scale != 1.0 and args.new_skill_actions != "sampled":
+        raise UsageError("--new_skill_std_scale scales the sampled actions' std: give --new_skill_actions sampled")
     twice = [t for n, t in enumerate(args.schedules) if t in args.schedules[:n]]
     if twice:
         raise UsageError(f"schedule {twice[0]!r} is given twice")
@@ -407,7 +415,7 @@ def main(argv=None):
 
     loaded = {}  # ValueError (one line) for an unknown skill or one missing from the library
     if any(NEW_SKILL in names[s.text] for s in schedules):
-        loaded[NEW_SKILL] = load_new_skill(args.new_skill, env, args.new_skill_actions)
+        loaded[NEW_SKILL] = load_new_skill(args.new_skill, env, args.new_skill_actions, args.new_skill_std_scale)
     for s in schedules:
         for n in names[s.text]:
             if n not in loaded:
@@ -454,6 +462,7 @@ def main(argv=None):
                                           skills=args.skills, episodes=args.episodes, seeds=seeds, noise=args.noise,
                                           steps=steps, new_skill=args.new_skill,
                                           new_skill_actions=args.new_skill_actions if args.new_skill else None,
+                                          new_skill_std_scale=args.new_skill_std_scale if args.new_skill else None,
                                           results=results), indent=1)
 
 
