@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from parallel_skills import learners, methods, networks, sharding
+from parallel_skills import crr, learners, methods, networks, sharding
 from parallel_skills import normalization as obs_norm
 from parallel_skills.acting import Actor, ActorState, StepStats
 from parallel_skills.config import RunConfig, TrainConfig, resolve, updates_per_iteration
@@ -350,6 +350,8 @@ class Evaluators(NamedTuple):
 
     new_skill: Callable  # (new_params, normalizer, key): the new skill alone, mean actions
     new_skill_sampled: Callable  # (new_params, normalizer, key): the same, actions sampled from π_N
+    new_skill_critic_weighted: Callable  # (new_params, critic_params, normalizer, key): the best of
+    # crr.CRITIC_WEIGHTED_CANDIDATES actions by its critic (``crr.critic_weighted_action``)
     scheduler: Callable  # (sched_params, new_params, normalizer, key): greedy decisions
     scheduler_sampled: Callable  # (sched_params, critic_params, new_params, normalizer, key)
 
@@ -359,7 +361,9 @@ def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: in
     (paper App. C.3): ``new_skill(new_params, normalizer, key)`` acts with the new skill's mean
     action (the deterministic policy ``training.evaluate`` and the export run);
     ``new_skill_sampled`` with actions sampled from its Gaussian, as it acts when the scheduler
-    picks it during collection; ``scheduler(sched_params, new_params, normalizer, key)`` acts
+    picks it during collection; ``new_skill_critic_weighted(new_params, critic_params, normalizer,
+    key)`` with the action its own critic values highest of the mean and samples from its Gaussian
+    (``crr.critic_weighted_action``); ``scheduler(sched_params, new_params, normalizer, key)`` acts
     greedily (argmax z) with its counters, through the run's acting step (``Actor.step``) on
     ``num_episodes`` envs; ``scheduler_sampled(sched_params, critic_params, new_params, normalizer,
     key)`` runs it as it collects (sampled, with the collection noise) and adds
@@ -377,6 +381,18 @@ def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: in
             return rollout_episodes(env, policy, key, num_episodes, episode_length)
 
         return evaluate
+
+    _, new_critic = learners.new_skill_networks(int(env.action_size), trainer.config.new_skill)
+
+    def eval_new_skill_critic_weighted(new_params, critic_params, normalizer, key):
+        def policy(obs, k):
+            x = obs_norm.normalize(normalizer, obs)
+            mean, std = new_apply(new_params, x)
+            score = lambda a: jnp.min(learners.critic_values(  # noqa: E731 - actions [M, A] -> [M]
+                new_critic, critic_params, jnp.broadcast_to(x, a.shape[:-1] + x.shape), a), axis=-1)
+            return crr.critic_weighted_action(mean, std, score, k, crr.CRITIC_WEIGHTED_CANDIDATES)
+
+        return rollout_episodes(env, policy, key, num_episodes, episode_length)
 
     def eval_scheduler(sched_params, new_params, normalizer, key):
         k0, k1 = jax.random.split(key)
@@ -415,6 +431,7 @@ def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: in
     mean_action = lambda mean, std, k: networks.deterministic_action(mean, std)  # noqa: E731
     return Evaluators(new_skill=jax.jit(new_skill_evaluation(mean_action)),
                       new_skill_sampled=jax.jit(new_skill_evaluation(networks.sample_action)),
+                      new_skill_critic_weighted=jax.jit(eval_new_skill_critic_weighted),
                       scheduler=jax.jit(eval_scheduler), scheduler_sampled=jax.jit(eval_scheduler_sampled))
 
 
@@ -675,6 +692,11 @@ def make_evaluation(env, trainer: Trainer, episode_length: int, seed: int,
         ev = evals.new_skill_sampled(state.new_skill.policy_params, state.normalizer, k4)
         out["eval/new_skill_sampled_success"] = mean(ev["success"])
         out["eval/new_skill_sampled_return"] = mean(ev["return"])
+        k5 = place(jax.random.fold_in(jax.random.fold_in(base_key, iteration), 3))
+        ev = evals.new_skill_critic_weighted(state.new_skill.policy_params, state.new_skill.critic_params,
+                                             state.normalizer, k5)
+        out["eval/new_skill_critic_weighted_success"] = mean(ev["success"])
+        out["eval/new_skill_critic_weighted_return"] = mean(ev["return"])
         if method.scheduler_acts:  # the scheduler acting (rhpo: the whole mixture)
             ev = evals.scheduler(state.scheduler.policy_params, state.new_skill.policy_params, state.normalizer, k2)
             out["eval/scheduler_success"] = mean(ev["success"])

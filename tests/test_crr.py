@@ -75,3 +75,24 @@ def test_mpo_loss_moves_mean_towards_high_q():
     loss, stats = gaussian_mpo_loss(tm, ts, tm, ts, actions, q, jnp.asarray(1.0), jnp.asarray(1.0),
                                     jnp.asarray(1.0), 0.1, 5e-3, 1e-5, jnp.zeros(B))
     assert np.isfinite(loss) and float(stats["mpo_kl_mean"]) == 0.0
+
+
+def test_critic_weighted_action_is_the_candidate_its_critic_values_highest():
+    """The read-out of ``eval/new_skill_critic_weighted_success``: the mean when the critic prefers
+    it, else the best-valued of the Gaussian's (clipped) samples; never an action outside them."""
+    import jax
+    import jax.numpy as jnp
+
+    from parallel_skills import networks
+    from parallel_skills.crr import critic_weighted_action
+
+    mean, std, key = jnp.asarray([0.2, -0.4]), jnp.asarray([0.5, 0.5]), jax.random.PRNGKey(3)
+    near_mean = lambda a: -jnp.sum(jnp.square(a - mean), axis=-1)  # noqa: E731
+    np.testing.assert_array_equal(critic_weighted_action(mean, std, near_mean, key, 8), mean)
+    first = lambda a: a[:, 0]  # noqa: E731 - the largest first component wins
+    picked = critic_weighted_action(mean, std, first, key, 8)
+    sampled = networks.sample_action(jnp.broadcast_to(mean, (7, 2)), jnp.broadcast_to(std, (7, 2)), key)
+    best = sampled[jnp.argmax(sampled[:, 0])]
+    assert float(best[0]) > float(mean[0])  # (this key draws a sample beyond the mean)
+    np.testing.assert_array_equal(picked, best)
+    assert float(jnp.max(jnp.abs(picked))) <= 1.0

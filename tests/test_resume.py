@@ -304,3 +304,30 @@ def test_resume_with_every_checkpoint_corrupt_is_refused_and_changes_nothing(uni
                           "restores", f"{ITERATIONS - 2}")
     assert "does not match" not in line, line
     assert _tree_bytes(run_x) == before
+
+
+def test_readouts_of_a_checkpoint(uninterrupted, tmp_path, capsys):
+    """training.experiments.readouts: the new skill of the run's latest checkpoint read out as its
+    mean, sampled and critic-weighted policy on the same resets; the same numbers twice; bad input
+    is one line and exit 2, the run untouched."""
+    from training.experiments import readouts
+
+    _, run = uninterrupted
+    before = sorted(os.listdir(run))
+    out = str(tmp_path / "r.json")
+    first = readouts.main([run, "--episodes", "4", "--batch", "2", "--json", out])
+    assert list(first) == list(readouts.READOUTS)
+    for r in first.values():
+        assert 0.0 <= r["success"] <= 1.0 and r["episodes"] == 4 and np.isfinite(r["return"])
+    saved = json.load(open(out))
+    assert saved["env_steps"] == 20 * ITERATIONS and saved["readouts"] == first
+    assert readouts.main([run, "--episodes", "4", "--batch", "2"]) == first
+    capsys.readouterr()
+    for argv, words in (([run, "--episodes", "3", "--batch", "2"], "multiple of --batch"),
+                        ([str(tmp_path / "none")], "does not exist"),
+                        ([str(tmp_path)], "cannot read the run")):
+        with pytest.raises(SystemExit) as e:
+            readouts.main(argv)
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and len(err.strip().splitlines()) == 1 and words in err, err
+    assert sorted(os.listdir(run)) == before

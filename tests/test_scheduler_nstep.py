@@ -145,10 +145,12 @@ def test_scheduler_nstep_trains_and_one_step_keeps_the_state_layout():
     ev = make_evaluation(env, trainer, 7, seed=0)(state, 3)
     for key in ("eval/scheduler_sampled_success", "eval/scheduler_sampled_return",
                 "eval/scheduler_discounted_return", "eval/scheduler_value_at_reset",
-                "eval/new_skill_sampled_success", "eval/new_skill_sampled_return"):
+                "eval/new_skill_sampled_success", "eval/new_skill_sampled_return",
+                "eval/new_skill_critic_weighted_success", "eval/new_skill_critic_weighted_return"):
         assert np.isfinite(ev[key]), key
     assert 0.0 <= ev["eval/scheduler_sampled_success"] <= 1.0
     assert 0.0 <= ev["eval/new_skill_sampled_success"] <= 1.0
+    assert 0.0 <= ev["eval/new_skill_critic_weighted_success"] <= 1.0
 
 
 def test_rewarded_fraction_counts_stored_rows_only():

@@ -178,10 +178,12 @@ class Progress:
         sched = f" scheduler={m['eval/scheduler_success']:.2f}" if "eval/scheduler_success" in m else ""
         sampled = (f" sampled={m['eval/new_skill_sampled_success']:.2f}" if "eval/new_skill_sampled_success" in m
                    else "")  # the new skill alone with sampled actions
+        weighted = (f" critic_weighted={m['eval/new_skill_critic_weighted_success']:.2f}"
+                    if "eval/new_skill_critic_weighted_success" in m else "")  # each action picked by its critic
         train = m["episode_success"]  # NaN: no training episode ended since the last line
         train = f"{train:.2f}" if train == train else "n/a"
         return (f"[{steps:>10,d} steps {rate:8,.0f}/s] new_skill success={m['eval/new_skill_success']:.2f}"
-                f" return={m['eval/new_skill_return']:.1f}{sampled}{sched} train_success={train}"
+                f" return={m['eval/new_skill_return']:.1f}{sampled}{weighted}{sched} train_success={train}"
                 f" new_skill_rate={m['new_skill_selection_rate']:.2f}")
 
     def bar(self) -> str:

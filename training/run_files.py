@@ -28,7 +28,9 @@ CSV_FIELDS = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skil
               "eval/scheduler_value_at_reset", "decision_entropy_i", "decision_entropy_k", "skill_share",
               "length_share", "replay_rewarded_fraction", "scheduler/policy_entropy_k",
               # The new skill alone with actions sampled from its Gaussian (as it collects).
-              "eval/new_skill_sampled_success", "eval/new_skill_sampled_return"]
+              "eval/new_skill_sampled_success", "eval/new_skill_sampled_return",
+              # The new skill alone, each action the best of the mean and samples by its critic.
+              "eval/new_skill_critic_weighted_success", "eval/new_skill_critic_weighted_return"]
 
 
 # Without --checkpoint_every: checkpoint at evaluations, but at most once a minute (a lift run on a
