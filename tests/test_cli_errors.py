@@ -200,6 +200,8 @@ def test_config_file_fields_and_the_cpu_recipe(ws):
     assert record["learners"]["env_steps_per_iteration"] == 160
     assert record["learners"]["new_skill"] == {"batch_size": 256, "updates_per_iteration": 10,
                                                "samples_per_env_step": 16.0}
+    # And what same-seed numbers depend on besides the config: the CPU cores this process may run on.
+    assert record["host"]["cpu_cores"] == len(os.sched_getaffinity(0)) and record["host"]["backend"] == "cpu"
 
 
 def test_resume_without_checkpoint_and_conflicting_flags(ws, fresh_run, capsys):

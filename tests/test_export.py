@@ -327,3 +327,26 @@ def test_evaluate_a_run_directory_and_a_library_skill(exported, tmp_path, capsys
     assert capsys.readouterr().out.strip().splitlines()[-1] == by_name
     err = _bad(base + ["library:no_such_skill"], capsys)
     assert "no skill 'no_such_skill' in the kinematic library" in err and "reach_green" in err
+
+
+@pytest.mark.parametrize("physics", ["mujoco", "kinematic"])
+def test_evaluate_sampled_actions(exported, capsys, physics):
+    """``--actions sampled``: the new skill acting with actions drawn from its Gaussian (as collected),
+    the same numbers for the same seed, others than its mean action's; one-line errors for policies
+    that are not a Gaussian MLP and for an unknown choice."""
+    path, _ = exported  # reach_green: a shaped reward, so returns tell the actions apart within 6 steps
+    base = ["--task", "reach_green", "--physics", physics, "--episodes", "3", "--episode_length", "6", "--policy", path]
+
+    def last_line(args):
+        evaluate.main(base + args)
+        return capsys.readouterr().out.strip().splitlines()[-1]
+
+    mean = last_line([])
+    sampled = last_line(["--actions", "sampled"])
+    assert sampled == last_line(["--actions", "sampled"])
+    assert sampled != mean and sampled.startswith("success=")
+    assert last_line(["--actions", "sampled", "--seed", "1"]) != sampled
+    assert "--actions must be one of mean, sampled, got 'noisy'" in _bad(base + ["--actions", "noisy"], capsys)
+    err = _bad(base[:-1] + [path + ":scheduler", "--actions", "sampled"], capsys)
+    assert "--actions sampled needs a Gaussian-MLP policy" in err
+    assert "needs a Gaussian-MLP policy" in _bad(base[:-1] + ["scripted:lift_green", "--actions", "sampled"], capsys)

@@ -13,6 +13,7 @@ import pytest
 
 from training.cli import UsageError, main_guard
 from training.experiments import schedules as S
+from training.rundir import new_skill_min_std
 from cli_checks import one_line_error
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -149,9 +150,9 @@ def test_new_skill_sampled_actions_draw_from_its_gaussian(tmp_path):
     params = {"policy": net.init(jax.random.PRNGKey(0), jnp.zeros((1, env.observation_size))),
               "obs_mean": jnp.zeros((env.observation_size,)), "obs_std": jnp.ones((env.observation_size,))}
     Skill.gaussian_mlp("lift_new_skill", params, env.action_size, (8,)).save(str(tmp_path / "new_skill.npz"))
-    assert S.run_min_std(str(tmp_path)) == NewSkillConfig.min_std  # no config.json: the default
+    assert new_skill_min_std(str(tmp_path)) == NewSkillConfig.min_std  # no config.json: the default
     (tmp_path / "config.json").write_text(json.dumps({"train_config": {"new_skill": {"min_std": 0.2}}}))
-    assert S.run_min_std(str(tmp_path)) == 0.2
+    assert new_skill_min_std(str(tmp_path)) == 0.2
     obs = jax.random.normal(jax.random.PRNGKey(1), (env.observation_size,))
     k1, k2 = jax.random.PRNGKey(2), jax.random.PRNGKey(3)
     mean_skill = S.load_new_skill(str(tmp_path), env, "mean")

@@ -23,6 +23,12 @@ With ``--physics mujoco`` the ``.npz`` policies run on the classic-MuJoCo twin
 (``tasks.manipulation.physics_np``) with a NumPy forward pass and import no JAX, except
 ``:scheduler`` with scripted skills, which imports JAX for them (they are JAX functions). The last line
 printed is ``success=<fraction> return=<mean>``.
+
+``--actions`` (Gaussian-MLP policies: a skill ``.npz`` or an export's new skill): ``mean`` (default,
+the deterministic read-out that ``eval/new_skill_success`` reports) or ``sampled``: clip(mean + std·ε,
+−1, 1) with the policy's own std and std floor, as the trainer collects with it and as
+``eval/new_skill_sampled_success`` reports (docs/scheduler.md §5: the learnt new skill *is* the
+Gaussian; its mean can succeed much less often).
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ import numpy as np
 from training.cli import Parser, UsageError, main_guard, nonnegative_int, positive_int
 
 EXPORT_SUFFIXES = ("new_skill", "scheduler")
+ACTIONS = ("mean", "sampled")  # --actions
 
 
 def parse_policy(spec: str, physics: str = "kinematic") -> tuple[str, str, str | None]:
@@ -269,6 +276,9 @@ def main(argv=None):
     p.add_argument("--episodes", type=positive_int, default=64)
     p.add_argument("--episode_length", type=positive_int, default=None)
     p.add_argument("--seed", type=nonnegative_int, default=0)
+    p.add_argument("--actions", default="mean",
+                   help=f"one of {', '.join(ACTIONS)}: a Gaussian-MLP policy's mean action or actions sampled from "
+                        "its Gaussian (as collected)")
     p.add_argument("--usage_plot", default=None,
                    help="with a ':scheduler' policy: write this image of the skill it runs at each step of the "
                         "episode (share of episodes per skill over episode time)")
@@ -278,7 +288,7 @@ def main(argv=None):
         if args.usage_plot and not args.policy.endswith(":scheduler"):
             raise UsageError(f"--usage_plot needs a ':scheduler' policy (DIR:scheduler), not {args.policy!r}")
         result = evaluate_policy(args.task, args.physics, args.policy, episodes=args.episodes, seed=args.seed,
-                                 episode_length=args.episode_length)
+                                 episode_length=args.episode_length, actions=args.actions)
         if args.usage_plot:
             from training.plot import plot_usage_over_episode
 
@@ -292,7 +302,8 @@ def main(argv=None):
             result.pop(k, None)
         success = float(np.mean(result["success"]))
         ret = float(np.mean(result["return"]))
-        print(f"task={args.task} physics={args.physics} policy={args.policy} episodes={args.episodes}")
+        print(f"task={args.task} physics={args.physics} policy={args.policy} episodes={args.episodes}"
+              + (f" actions={args.actions}" if args.actions != "mean" else ""))
         for line in lines:
             print(line)
         print(f"success={success:.4f} return={ret:.3f}")
@@ -301,10 +312,10 @@ def main(argv=None):
 
 
 def evaluate_policy(task: str, physics: str, policy: str, episodes: int = 64, seed: int = 0,
-                    episode_length: int | None = None) -> dict:
+                    episode_length: int | None = None, actions: str = "mean") -> dict:
     """What ``python -m training.evaluate`` computes, as a function: per-episode ``success`` and
     ``return`` arrays of ``policy`` (a ``--policy`` spec) on ``task`` / ``physics``, plus ``lines``
-    (the extra report lines). UsageError / ValueError on bad input."""
+    (the extra report lines); ``actions`` as ``--actions``. UsageError / ValueError on bad input."""
     import argparse
 
     import tasks
@@ -313,9 +324,14 @@ def evaluate_policy(task: str, physics: str, policy: str, episodes: int = 64, se
         raise UsageError(f"unknown task {task!r}; valid tasks: {', '.join(tasks.names())}")
     if physics not in tasks.PHYSICS:
         raise UsageError(f"unknown physics {physics!r}; valid: {', '.join(tasks.PHYSICS)}")
+    if actions not in ACTIONS:
+        raise UsageError(f"--actions must be one of {', '.join(ACTIONS)}, got {actions!r}")
     args = argparse.Namespace(task=task, physics=physics, policy=policy, episodes=int(episodes), seed=int(seed),
-                              episode_length=episode_length)
+                              episode_length=episode_length, actions=actions)
     kind, target, suffix = parse_policy(policy, physics)
+    if actions == "sampled" and (kind == "scripted" or suffix == "scheduler"):
+        raise UsageError(f"--actions sampled needs a Gaussian-MLP policy (a skill .npz or an export's new skill), "
+                         f"not {policy!r}")
     if kind == "scripted":
         scripted_controller(target)  # exists (UsageError naming the valid ones)
     export = None
@@ -352,7 +368,10 @@ def _evaluate_on_twin(args, kind, path, export, suffix):
         policy = NumpyGaussianPolicy.load(path, obs_size=L.OBS_SIZE, action_size=L.ACTION_SIZE)
     else:
         export.check_task_sizes(L.OBS_SIZE, L.ACTION_SIZE)
-        policy = export.new_skill if suffix == "new_skill" else scheduler_policy(export, args.seed)
+        policy = export.new_skill if suffix != "scheduler" else scheduler_policy(export, args.seed)
+    if args.actions == "sampled":
+        gaussian, rng = policy, np.random.default_rng([args.seed, 1])
+        policy = lambda obs: gaussian.sample(obs, rng)  # noqa: E731
     result = run_episodes(TwinBatch(args.task, args.episodes, args.seed), policy, length)
     if isinstance(policy, ScheduledPolicy):
         return _with_timeline(result, export, policy, L.CONTROL_DT), _usage_line(export, policy)
@@ -381,14 +400,26 @@ def _evaluate_on_jax_env(args, kind, target, export, suffix):
             return (_with_timeline(result, export, policy, getattr(env, "dt", None), envs.start_kind,
                                    getattr(env, "START_NAMES", None)), _usage_line(export, policy))
         skill = jax_new_skill(export)
+        min_std = export.new_skill.min_std
     elif kind == "skill":
         from parallel_skills.skills import Skill
 
         skill = Skill.load(target, obs_size=env.observation_size, action_size=env.action_size)
+        min_std = skill.metadata.get("min_std")
+        if min_std is None:  # a run's new_skill.npz: the std floor is in the run's config.json
+            from training.rundir import new_skill_min_std
+
+            min_std = new_skill_min_std(os.path.dirname(os.path.abspath(target)))
     if kind == "scripted":
         policy = scripted_controller(target)
     else:
-        policy = lambda obs, key: skill.apply(skill.params, obs, key)  # noqa: E731
+        apply = skill.apply
+        if args.actions == "sampled":
+            from parallel_skills.skills import gaussian_mlp_apply
+
+            apply = gaussian_mlp_apply(skill.metadata["action_size"], skill.metadata["hidden"], sampled=True,
+                                       min_std=min_std)
+        policy = lambda obs, key: apply(skill.params, obs, key)  # noqa: E731
 
     from parallel_skills.evaluation import make_evaluator
 

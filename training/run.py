@@ -243,7 +243,7 @@ def prepare_new(args, argv, num_devices: int = 1, write: bool = True):
         num_timesteps=num_timesteps, episode_length=int(getattr(env, "episode_length", 0)) or settings.episode_length,
         checkpoint_every=settings.checkpoint_every, replay_checkpoint=not args.no_replay_checkpoint,
         video=bool(args.video), train_config=dataclasses.asdict(resolved), auto=notes,
-        learners=learner_schedule(resolved))
+        learners=learner_schedule(resolved), host=rundir.host_facts())
     if write:
         rundir.create(out, run)
     return out, run, resolved, env

@@ -48,6 +48,9 @@ class RunRecord:
     # (parallel_skills.config.learner_schedule); None in records from before the field.
     learners: Optional[dict] = None
     extensions: list = dataclasses.field(default_factory=list)  # {"from", "to", "command"} per extension
+    # What the same-seed numbers depend on besides the config (``host_facts``: on a CPU they are
+    # reproducible per core count); None in records from before the field.
+    host: Optional[dict] = None
 
     REQUIRED = ("task", "physics", "skills", "seed", "num_timesteps", "train_config")
     DEFAULTS = dict(command="", skill_set=None, skill_source="scripted", skill_dir=None, episode_length=None,
@@ -67,8 +70,9 @@ class RunRecord:
         data = dataclasses.asdict(self)
         if not self.extensions:  # (records of unextended runs have no such key)
             del data["extensions"]
-        if self.learners is None:
-            del data["learners"]
+        for optional in ("learners", "host"):
+            if data[optional] is None:
+                del data[optional]
         return data
 
     def config(self, where: str = CONFIG_JSON):
@@ -91,6 +95,17 @@ def train_config_from_json(data: dict, where: str):
         return from_dict(TrainConfig(), data, where)
     except ValueError as e:
         raise UsageError(str(e)) from None
+
+
+def host_facts() -> dict:
+    """``{"cpu_cores", "backend", "devices", "processes", "jax"}`` of this process: the CPU cores it may
+    run on (its affinity mask, which XLA's CPU thread pool follows), JAX's backend, device and process
+    counts and version. Same-seed runs give the same numbers for equal facts."""
+    import jax
+
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return {"cpu_cores": int(cores), "backend": jax.default_backend(), "devices": int(jax.device_count()),
+            "processes": int(jax.process_count()), "jax": jax.__version__}
 
 
 def config_path(out: str) -> str:
@@ -208,3 +223,16 @@ def extend(out: str, record: RunRecord, command: str) -> None:
         os.remove(os.path.join(out, "export.json"))
     print(f"extending {out}: {old:,} -> {new:,} env steps"
           + (f"; its outputs at {exported:,} are kept in {archive_dir(out, exported)}" if exported else ""))
+
+
+def new_skill_min_std(run_dir: str) -> float:
+    """The new skill's std floor of the run in ``run_dir`` (its config.json's ``train_config.new_skill.min_std``),
+    or ``NewSkillConfig.min_std`` when the directory holds no readable config.json."""
+    from parallel_skills.config import NewSkillConfig
+
+    try:
+        with open(os.path.join(run_dir, "config.json")) as f:
+            data = json.load(f)
+        return float(data["train_config"]["new_skill"]["min_std"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return float(NewSkillConfig.min_std)

@@ -64,6 +64,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from training.cli import Parser, UsageError, check_writable, main_guard, positive_int, write_json_atomic
+from training.rundir import new_skill_min_std
 
 SOURCES = ("scripted", "library")
 NEW_SKILL = "new"  # the step name of --new_skill
@@ -316,26 +317,11 @@ def load_new_skill(path, env, actions: str = "mean", std_scale: float = 1.0):
     if actions == "sampled":
         from parallel_skills.skills import gaussian_mlp_apply
 
-        min_std = run_min_std(os.path.dirname(os.path.abspath(file)))
+        min_std = new_skill_min_std(os.path.dirname(os.path.abspath(file)))
         skill = dataclasses.replace(skill, apply=gaussian_mlp_apply(skill.metadata["action_size"], skill.metadata["hidden"],
                                                                     sampled=True, min_std=min_std,
                                                                     std_scale=std_scale))
     return skill
-
-
-def run_min_std(run_dir: str) -> float:
-    """The new skill's std floor of the run in ``run_dir`` (its config.json's ``train_config.new_skill.min_std``),
-    or ``NewSkillConfig.min_std`` when the directory holds no readable config.json."""
-    import json
-
-    from parallel_skills.config import NewSkillConfig
-
-    try:
-        with open(os.path.join(run_dir, "config.json")) as f:
-            data = json.load(f)
-        return float(data["train_config"]["new_skill"]["min_std"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return float(NewSkillConfig.min_std)
 
 
 def parse_seeds(text: str) -> list[int]:
