@@ -363,9 +363,10 @@ def recipe_values(recipe: str, num_envs: int, unroll_length: int) -> dict:
       with exp weights). At 4,096 envs × 25 steps that is 80,000 + 20,000 updates per iteration.
     * ``cpu`` (the default on a CPU backend; 32 envs): the learners are FLOP-bound there, so
       fewer samples per env step than the paper (scheduler 8, new skill 16), a critic-only
-      warm-up for the scheduler (Eq. 3's long-horizon values first), and for the new skill CRR's
-      indicator weights with 10-step TD targets, which carry the sparse reward back with 4× fewer
-      samples than the one-step recipe needed (64).
+      warm-up for the scheduler (Eq. 3's long-horizon values first), and for the new skill 10-step
+      TD targets, which carry the sparse reward back with 4× fewer samples than the one-step
+      recipe needed (64), with the paper's CRR exp weights (until 2026-12-04 the indicator's, whose
+      mean action held the cube over the target on stack and never let go: docs/scheduler.md §8).
     * ``parallel`` (the default on an accelerator): one env step per env per iteration and a fixed
       32 updates of batches that grow with the envs: scheduler batch 25·steps/8 × 8 updates
       (25 samples per env step, 4× below the paper's 100), new skill batch = steps × 24 updates
@@ -378,8 +379,7 @@ def recipe_values(recipe: str, num_envs: int, unroll_length: int) -> dict:
         return {}
     if recipe == "cpu":
         return {("scheduler", "samples_per_insert"): 8.0, ("scheduler", "policy_warmup_updates"): 1500,
-                ("new_skill", "samples_per_insert"): 16.0, ("new_skill", "crr_mode"): "indicator",
-                ("new_skill", "n_step"): 10}
+                ("new_skill", "samples_per_insert"): 16.0, ("new_skill", "n_step"): 10}
     steps = int(num_envs) * int(unroll_length)
     return {("scheduler", "batch_size"): max(1, steps * 25 // 8), ("scheduler", "samples_per_insert"): 25.0,
             ("scheduler", "policy_warmup_updates"): 190, ("scheduler", "target_actor_period"): 12,

@@ -194,7 +194,7 @@ def test_config_file_fields_and_the_cpu_recipe(ws):
     with open(out / "config.json") as f:
         record = json.load(f)
     new_skill = record["train_config"]["new_skill"]
-    assert new_skill["n_step"] == 2 and new_skill["samples_per_insert"] == 16.0 and new_skill["crr_mode"] == "indicator"
+    assert new_skill["n_step"] == 2 and new_skill["samples_per_insert"] == 16.0 and new_skill["crr_mode"] == "exp"
     assert record["train_config"]["recipe"] == "cpu"
     # The learners' batches and updates per iteration are recorded: 32 envs x 5 steps = 160 per iteration.
     assert record["learners"]["env_steps_per_iteration"] == 160
@@ -202,6 +202,21 @@ def test_config_file_fields_and_the_cpu_recipe(ws):
                                                "samples_per_env_step": 16.0}
     # And what same-seed numbers depend on besides the config: the CPU cores this process may run on.
     assert record["host"]["cpu_cores"] == len(os.sched_getaffinity(0)) and record["host"]["backend"] == "cpu"
+
+
+def test_a_runs_config_json_as_config_file(ws):
+    """``--config RUN/config.json``: the run's whole resolved TrainConfig, so a new run trains as that
+    one did (here with the recipe's earlier indicator weights), whatever the recipe is now."""
+    from training.run import build_parser, prepare_new
+
+    first = ws / "recorded_run"
+    argv = ["--new_skill.crr_mode", "indicator", "--scheduler.n_step", "3", "--num_timesteps", "100", "--out", str(first)]
+    prepare_new(build_parser().parse_args(argv), argv)
+    again = ws / "from_record"
+    argv = ["--config", str(first / "config.json"), "--num_timesteps", "100", "--out", str(again)]
+    prepare_new(build_parser().parse_args(argv), argv)
+    recorded, rebuilt = (json.loads((d / "config.json").read_text())["train_config"] for d in (first, again))
+    assert rebuilt == recorded and rebuilt["new_skill"]["crr_mode"] == "indicator"
 
 
 def test_resume_without_checkpoint_and_conflicting_flags(ws, fresh_run, capsys):

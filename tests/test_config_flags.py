@@ -61,7 +61,7 @@ def test_flags_set_nested_fields_and_the_recipe_fills_the_rest(tmp_path):
     assert cfg.scheduler.n_step == 10 and cfg.new_skill.samples_per_insert == 32.0 and cfg.num_envs == 64
     assert cfg.scheduler.skill_lengths == (5, 10) and cfg.scheduler.augmentation is False
     assert isinstance(cfg.new_skill.samples_per_insert, float)
-    assert cfg.new_skill.n_step == 10 and cfg.new_skill.crr_mode == "indicator"  # the CPU recipe's, not given
+    assert cfg.new_skill.n_step == 10 and cfg.new_skill.crr_mode == "exp"  # the CPU recipe's, not given
     assert cfg.scheduler.samples_per_insert == 8.0
     assert run.seed == 3 and run.train_config["new_skill"]["samples_per_insert"] == 32.0
     assert any("samples_per_insert=8" in n for n in run.auto) and not any("=32" in n for n in run.auto)

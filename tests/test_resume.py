@@ -322,8 +322,12 @@ def test_readouts_of_a_checkpoint(uninterrupted, tmp_path, capsys):
     saved = json.load(open(out))
     assert saved["env_steps"] == 20 * ITERATIONS and saved["readouts"] == first
     assert readouts.main([run, "--episodes", "4", "--batch", "2"]) == first
+    # Noise on every action dimension is the sampled read-out itself (the same keys, the same actions).
+    dims = readouts.main([run, "--episodes", "4", "--batch", "2", "--noise_dims", "0,1,2,3,4", "--noise_dims", "4"])
+    assert dims["sampled_dims_0_1_2_3_4"] == first["sampled"] and 0.0 <= dims["sampled_dims_4"]["success"] <= 1.0
     capsys.readouterr()
     for argv, words in (([run, "--episodes", "3", "--batch", "2"], "multiple of --batch"),
+                        ([run, "--episodes", "2", "--batch", "2", "--noise_dims", "4,5"], "indices in 0..4"),
                         ([str(tmp_path / "none")], "does not exist"),
                         ([str(tmp_path)], "cannot read the run")):
         with pytest.raises(SystemExit) as e:
@@ -331,3 +335,37 @@ def test_readouts_of_a_checkpoint(uninterrupted, tmp_path, capsys):
         err = capsys.readouterr().err
         assert e.value.code == 2 and len(err.strip().splitlines()) == 1 and words in err, err
     assert sorted(os.listdir(run)) == before
+
+
+def test_action_trace_of_a_checkpoint(uninterrupted, tmp_path, capsys):
+    """training.experiments.action_trace: the checkpoint's new skill with its mean action, one action
+    dimension's mean and std and the named observation entries per step; its first step is the
+    policy's mean at the reset observation, computed here apart; bad input is one line."""
+    import jax
+
+    from parallel_skills import learners
+    from parallel_skills import normalization as obs_norm
+    from tasks.manipulation import layout as L
+    from training.experiments import action_trace, readouts
+
+    _, run = uninterrupted
+    out = action_trace.main([run, "--episodes", "2", "--every", "200", "--obs", "finger_angle,green_pose",
+                             "--json", str(tmp_path / "t.json")])
+    length = out["mean"].shape[0]
+    assert out["mean"].shape == out["std"].shape == (length, 2) and out["green_pose"].shape == (length, 2, 3)
+    env, trainer, state, _ = readouts.load_run_state(run)
+    obs = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 2)).obs
+    mean, std = learners.make_new_skill_apply(int(env.action_size), trainer.config.new_skill)(
+        state.new_skill.policy_params, obs_norm.normalize(state.normalizer, obs))
+    np.testing.assert_allclose(out["mean"][0], np.asarray(mean)[:, 4], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(out["std"][0], np.asarray(std)[:, 4], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(out["finger_angle"][0, :, 0], np.asarray(obs)[:, L.FINGER])
+    np.testing.assert_allclose(out["green_pose"][0], np.asarray(obs)[:, L.cube_pos("green")])
+    saved = json.load(open(tmp_path / "t.json"))
+    assert saved["dim"] == 4 and len(saved["mean"]) == length
+    capsys.readouterr()
+    for argv, words in (([run, "--dim", "5"], "action index in 0..4"), ([run, "--obs", "nose"], "unknown entry 'nose'")):
+        with pytest.raises(SystemExit) as e:
+            action_trace.main(argv)
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and len(err.strip().splitlines()) == 1 and words in err, err

@@ -80,7 +80,8 @@ def build_parser():
                    help="--method finetune: the network skill the new skill starts from (library name, or one in "
                         "--skill_dir); default the task's last useful skill, from the library")
     p.add_argument("--config", default=None, help="JSON file overriding TrainConfig fields, e.g. "
-                   '{"unroll_length": 25, "scheduler": {"policy_warmup_updates": 1500}, "new_skill": {"crr_mode": "indicator"}}')
+                   '{"unroll_length": 25, "scheduler": {"policy_warmup_updates": 1500}, "new_skill": {"crr_mode": "indicator"}}'
+                   "; or a run's config.json: its whole resolved TrainConfig (task, skills and length stay flags)")
     p.add_argument("--out", default=None, help="run directory (must not exist unless --resume); "
                    "default runs/<task>-<method>-s<seed>-<time>")
     p.add_argument("--resume", action="store_true",
@@ -136,6 +137,8 @@ def load_config_file(path: str) -> dict:
         raise UsageError(f"cannot read config file {path}: {str(e).splitlines()[0]}") from None
     if not isinstance(data, dict):
         raise UsageError(f"config file {path} must hold a JSON object of TrainConfig fields")
+    if isinstance(data.get("train_config"), dict) and "task" in data:  # a run's config.json: its whole config
+        return rundir.recorded_train_config(data["train_config"])
     return data
 
 

@@ -88,11 +88,8 @@ def train_config_from_json(data: dict, where: str):
     value that run had: runs from before ``new_skill.num_critics`` existed trained one critic."""
     from parallel_skills.config import TrainConfig, from_dict
 
-    data = dict(data)
-    if isinstance(data.get("new_skill"), dict) and "num_critics" not in data["new_skill"]:
-        data["new_skill"] = dict(data["new_skill"], num_critics=1)
     try:
-        return from_dict(TrainConfig(), data, where)
+        return from_dict(TrainConfig(), recorded_train_config(data), where)
     except ValueError as e:
         raise UsageError(str(e)) from None
 
@@ -106,6 +103,15 @@ def host_facts() -> dict:
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return {"cpu_cores": int(cores), "backend": jax.default_backend(), "devices": int(jax.device_count()),
             "processes": int(jax.process_count()), "jax": jax.__version__}
+
+
+def recorded_train_config(data: dict) -> dict:
+    """A record's ``train_config`` object with the fields added since it was written at the value
+    that run had (runs from before ``new_skill.num_critics`` trained one critic)."""
+    data = dict(data)
+    if isinstance(data.get("new_skill"), dict) and "num_critics" not in data["new_skill"]:
+        data["new_skill"] = dict(data["new_skill"], num_critics=1)
+    return data
 
 
 def config_path(out: str) -> str:
