@@ -306,6 +306,27 @@ def test_resume_with_every_checkpoint_corrupt_is_refused_and_changes_nothing(uni
     assert _tree_bytes(run_x) == before
 
 
+def test_load_checkpointed_run_reads_a_named_or_the_latest_checkpoint(uninterrupted):
+    """training.run_files.load_checkpointed_run: the run rebuilt from config.json and a checkpoint
+    (the latest by default, or a named step), read only; a step that is not there is one line."""
+    from training.cli import UsageError
+    from training.run_files import load_checkpointed_run
+
+    _, run = uninterrupted
+    before = _tree_bytes(run)
+    steps = Checkpointer(run).steps()
+    latest = load_checkpointed_run(run)
+    assert latest.record.task == "lift" and latest.host["env_steps"] == 20 * ITERATIONS
+    first = load_checkpointed_run(run, min(steps))
+    assert first.host["env_steps"] < latest.host["env_steps"]
+    assert int(first.state.iteration) < int(latest.state.iteration)
+    with pytest.raises(UsageError) as e:
+        load_checkpointed_run(run, max(steps) + 1)
+    assert f"no checkpoint at iteration {max(steps) + 1}" in str(e.value), e.value
+    assert len(str(e.value).splitlines()) == 1
+    assert _tree_bytes(run) == before
+
+
 def test_readouts_of_a_checkpoint(uninterrupted, tmp_path, capsys):
     """training.experiments.readouts: the new skill of the run's latest checkpoint read out as its
     mean, sampled and critic-weighted policy on the same resets; the same numbers twice; bad input

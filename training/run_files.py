@@ -1,7 +1,8 @@
 """The files of a training.run run directory while it trains and after: the metrics.csv /
 TensorBoard / checkpoint sink (``RunFiles``, what ``parallel_skills.train`` calls back), the resume
 surgery (``restore_run`` / ``restore_group`` read a checkpoint, ``resume_files`` then cuts
-metrics.csv back to it and sets aside what it does not cover) and the finished run's outputs
+metrics.csv back to it and sets aside what it does not cover), a finished or stopped run read back
+for analysis (``load_checkpointed_run``) and the finished run's outputs
 (``write_outputs``: new_skill.npz, plots, video, export). ``training.run`` parses and
 orchestrates; nothing here parses flags.
 """
@@ -12,6 +13,7 @@ import csv
 import io
 import os
 import sys
+from typing import Any, NamedTuple, Optional
 
 from parallel_skills import methods
 from training import rundir
@@ -114,6 +116,44 @@ def restore_run(out, ckpt, csv_path, env, skills, resolved, seed: int, steps=Non
     except CheckpointError as e:
         raise UsageError(f"cannot resume: {e}") from None
     return state, checked_host(ckpt, csv_path, host, primary)
+
+
+class CheckpointedRun(NamedTuple):
+    """A run directory read back from its record and one checkpoint (``load_checkpointed_run``)."""
+    record: Any  # rundir.RunRecord
+    config: Any  # the run's resolved TrainConfig
+    env: Any
+    skills: Any  # the frozen skills the run trained with (skill_library.load_skills)
+    state: Any  # TrainingState
+    host: dict  # the checkpoint's host state (env_steps, csv_bytes, ...)
+
+
+def load_checkpointed_run(run_dir: str, step: Optional[int] = None) -> CheckpointedRun:
+    """The run in ``run_dir`` rebuilt from its config.json (env, skills, resolved config) and its
+    checkpoint ``step`` (default: the latest that restores). Reads only. UsageError (one line) when
+    ``run_dir`` is not a run, or no such checkpoint restores."""
+    import tasks
+    from training import skill_library
+    from training.checkpointing import CheckpointError, Checkpointer, abstract_training_state
+
+    record = rundir.read_record(run_dir, "cannot read the run")
+    resolved = record.config(f"{rundir.config_path(run_dir)} train_config")
+    env = tasks.make(record.task, physics=record.physics, **record.env_overrides())
+    skills = skill_library.load_skills(list(record.skills), record.physics, record.skill_source,
+                                       env.observation_size, env.action_size, skill_dir=record.skill_dir)
+    abstract, fresh_replay = abstract_training_state(env, skills, resolved, int(record.seed))
+    ckpt = Checkpointer(run_dir)
+    try:
+        if step is None:
+            state, host = ckpt.restore_latest(abstract, fresh_replay)
+        elif int(step) not in ckpt.steps():
+            raise UsageError(f"{run_dir}: no checkpoint at iteration {int(step)} (it has: "
+                             f"{', '.join(map(str, ckpt.steps())) or 'none'})")
+        else:
+            state, host = ckpt.restore(abstract, fresh_replay, step=int(step))
+    except CheckpointError as e:
+        raise UsageError(f"{run_dir}: {e}") from None
+    return CheckpointedRun(record, resolved, env, skills, state, host)
 
 
 def checked_host(ckpt, csv_path, host, primary: bool = True) -> dict:

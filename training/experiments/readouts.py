@@ -56,22 +56,11 @@ def parse_dims(text: str, action_size: int) -> tuple[int, ...]:
 def load_run_state(run_dir: str):
     """``(env, trainer, state, host)`` of the latest restorable checkpoint of ``run_dir`` (read only).
     UsageError (one line) when the directory is not a run with a checkpoint."""
-    import tasks
     from parallel_skills.train import make_trainer
-    from training import rundir, skill_library
-    from training.checkpointing import CheckpointError, Checkpointer, abstract_training_state
+    from training.run_files import load_checkpointed_run
 
-    record = rundir.read_record(run_dir, "cannot read the run")
-    resolved = record.config(f"{rundir.config_path(run_dir)} train_config")
-    env = tasks.make(record.task, physics=record.physics, **record.env_overrides())
-    skills = skill_library.load_skills(list(record.skills), record.physics, record.skill_source,
-                                       env.observation_size, env.action_size, skill_dir=record.skill_dir)
-    abstract, fresh_replay = abstract_training_state(env, skills, resolved, int(record.seed))
-    try:
-        state, host = Checkpointer(run_dir).restore_latest(abstract, fresh_replay)
-    except CheckpointError as e:
-        raise UsageError(f"{run_dir}: {e}") from None
-    return env, make_trainer(env, skills, resolved), state, host
+    run = load_checkpointed_run(run_dir)
+    return run.env, make_trainer(run.env, run.skills, run.config), run.state, run.host
 
 
 def noise_on_dims_evaluation(env, trainer, num_episodes: int, dims: tuple[int, ...]):

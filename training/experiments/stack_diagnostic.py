@@ -59,19 +59,10 @@ def reference_states(env, num_envs: int, seed: int) -> dict:
 
 def restore(run_dir: str, step):
     """(the run's ``RunRecord``, TrainConfig, env, restored TrainingState) of checkpoint ``step``."""
-    import tasks
-    from training import skill_library
-    from training.checkpointing import Checkpointer, abstract_training_state
-    from training.rundir import read_record
+    from training.run_files import load_checkpointed_run
 
-    run = read_record(run_dir)
-    cfg = run.config()
-    env = tasks.make(run.task, physics=run.physics, **run.env_overrides())
-    skills = skill_library.load_skills(run.skills, run.physics, run.skill_source, env.observation_size,
-                                       env.action_size, skill_dir=run.skill_dir)
-    abstract, fresh_replay = abstract_training_state(env, skills, cfg, int(run.seed))
-    state, _ = Checkpointer(run_dir).restore(abstract, fresh_replay, step=step)
-    return run, cfg, env, state
+    run = load_checkpointed_run(run_dir, step)
+    return run.record, run.config, run.env, run.state
 
 
 def rollout(env, act, state, steps: int, key):
@@ -229,6 +220,7 @@ def print_table(r: dict) -> None:
 
 def main():
     from training.checkpointing import Checkpointer
+    from training.cli import main_guard
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run directories of `training.run --task stack`")
@@ -238,18 +230,21 @@ def main():
     p.add_argument("--json", default=None, metavar="OUT.json", help="also write the results here")
     args = p.parse_args()
 
-    out = {}
-    for run_dir in args.runs:
-        step = Checkpointer(run_dir).latest_step() if args.step is None else args.step
-        if step is None:
-            print(f"\n== {run_dir}: no checkpoint, skipped")
-            continue
-        r = analyse(run_dir, step, args.envs, args.seed)
-        print_table(r)
-        out[f"{os.path.basename(os.path.normpath(run_dir))}@{r['iteration']}"] = r
-        if args.json:
-            with open(args.json, "w") as f:
-                json.dump(out, f, indent=1)
+    def run():
+        out = {}
+        for run_dir in args.runs:
+            step = Checkpointer(run_dir).latest_step() if args.step is None else args.step
+            if step is None:
+                print(f"\n== {run_dir}: no checkpoint, skipped")
+                continue
+            r = analyse(run_dir, step, args.envs, args.seed)
+            print_table(r)
+            out[f"{os.path.basename(os.path.normpath(run_dir))}@{r['iteration']}"] = r
+            if args.json:
+                with open(args.json, "w") as f:
+                    json.dump(out, f, indent=1)
+
+    main_guard(run)
 
 
 if __name__ == "__main__":
