@@ -306,6 +306,9 @@ class RunConfig:
     num_timesteps: Optional[int] = None
     seed: int = 0
     episode_length: Optional[int] = None  # env steps per episode; None: the task's
+    # The env's reset distribution (tasks.make(..., start_states=)): "table" (the paper's resets) or
+    # "mixed" (also one cube on or beside another; kinematic physics).
+    start_states: str = "table"
     # Env steps between checkpoints; None: at evaluations, at most once a minute, and at the end
     # (training.run keeps the latest 2).
     checkpoint_every: Optional[int] = None

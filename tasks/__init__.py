@@ -38,10 +38,15 @@ def names() -> list[str]:
 
 
 def make(name: str, physics: str = "kinematic", **overrides):
-    """Build task ``name`` on backend ``physics``. Overrides: ``episode_length`` and backend options."""
+    """Build task ``name`` on backend ``physics``. Overrides: ``episode_length``, ``start_states``
+    (a manipulation task's reset distribution, ``tasks.manipulation.kinematic.START_STATES``:
+    ``"table"``, every backend; ``"mixed"``, kinematic) and backend options."""
+    start_states = overrides.pop("start_states", "table")
     if name in LOCOMOTION_TASKS:
         if physics not in LOCOMOTION_PHYSICS:
             raise ValueError(f"locomotion task {name!r} runs on physics {' or '.join(LOCOMOTION_PHYSICS)}, not {physics!r}")
+        if start_states != "table":
+            raise ValueError(f"start_states {start_states!r} is for the manipulation tasks; {name!r} has its own resets")
         from tasks.locomotion.env import make_locomotion_env
 
         return make_locomotion_env(name, physics=physics, **overrides)
@@ -50,7 +55,10 @@ def make(name: str, physics: str = "kinematic", **overrides):
     if physics == "kinematic":
         from tasks.manipulation.kinematic import KinematicBlocks
 
-        return KinematicBlocks(name, **overrides)
+        return KinematicBlocks(name, start_states=start_states, **overrides)
+    if start_states != "table":
+        raise ValueError(f"start_states {start_states!r} is implemented for the kinematic physics only; "
+                         f"physics {physics!r} resets with 'table'")
     if physics == "warp" and not warp_installed():
         raise ValueError(WARP_MISSING)
     if physics in ("mjx", "warp"):

@@ -148,6 +148,8 @@ def _check_ship(tmp_path, capsys):
     (["--out", "c", "--stages", "lift_green,lift_green"], "repeats a task"),
     (["--out", "c", "--physics", "bullet"], "unknown physics"),
     (["--out", "c", "--config", "missing.json"], "does not exist"),
+    (["--out", "c", "--start_states", "tower"], "start_states must be one of table, mixed"),
+    (["--out", "c", "--physics", "mujoco", "--start_states", "mixed"], "kinematic physics only"),
 ])
 def test_chain_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, argv, message):
     from training.chain import main
@@ -198,3 +200,14 @@ def test_total_training_wall_time_reads_runs_recorded_without_it(tmp_path):
         "lift_yellow": {"run_dir": str(tmp_path / "gone"), "wall_time_s": 2592.8, "training_wall_time_s": 2593.0},
         "stack": {"run_dir": str(tmp_path / "gone"), "wall_time_s": 10.0}}}
     assert total_training_wall_time(record) == pytest.approx(3688.2 + 2593.0 + 10.0)
+
+
+def test_stage_argv_passes_start_states_on():
+    """--start_states reaches every new stage's training.run (a resume reads it from the record)."""
+    from training.chain import build_parser, stage_argv
+
+    args = build_parser().parse_args(["--out", "c", "--start_states", "mixed"])
+    argv = stage_argv("stack_green_on_yellow", args, "c/skills", "c/stack_green_on_yellow", resume=False)
+    assert argv[argv.index("--start_states") + 1] == "mixed"
+    assert "--start_states" not in stage_argv("lift_green", build_parser().parse_args(["--out", "c"]), "s", "r", False)
+    assert "--start_states" not in stage_argv("lift_green", args, "s", "r", resume=True)

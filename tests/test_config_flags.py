@@ -84,7 +84,22 @@ def test_defaults_are_the_runs():
     assert BASE_CONFIG.eval_episodes == 32 and RunConfig().seed == 0
 
 
+def test_start_states_is_recorded_and_rebuilds_the_runs_env(tmp_path):
+    """--start_states mixed: in config.json, and the env a resume or a read-out builds from the
+    record has it; "table" (the default, and records from before the field) adds no override."""
+    from training.rundir import RunRecord
+
+    run, _ = _record(tmp_path, ["--task", "stack", "--start_states", "mixed"])
+    assert run.start_states == "mixed" and run.to_json()["start_states"] == "mixed"
+    assert RunRecord.from_json(run.to_json()).env_overrides() == {"episode_length": 600, "start_states": "mixed"}
+    old = {k: v for k, v in run.to_json().items() if k != "start_states"}
+    assert RunRecord.from_json(old).start_states == "table"
+    assert RunRecord.from_json(old).env_overrides() == {"episode_length": 600}
+
+
 @pytest.mark.parametrize("argv,needle", [
+    (["--start_states", "tower"], "start_states must be one of table, mixed, got 'tower'"),
+    (["--physics", "mujoco", "--start_states", "mixed"], "kinematic physics only"),
     (["--scheduler.n_step", "0"], "argument --scheduler.n_step: expected a positive integer, got '0'"),
     (["--new_skill.crr_mode", "bogus"], "argument --new_skill.crr_mode: expected 'exp' or 'indicator', got 'bogus'"),
     (["--scheduler.skill_lengths", "3,2"], "expected positive, unique and ascending integers, got '3,2'"),

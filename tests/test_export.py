@@ -350,3 +350,19 @@ def test_evaluate_sampled_actions(exported, capsys, physics):
     err = _bad(base[:-1] + [path + ":scheduler", "--actions", "sampled"], capsys)
     assert "--actions sampled needs a Gaussian-MLP policy" in err
     assert "needs a Gaussian-MLP policy" in _bad(base[:-1] + ["scripted:lift_green", "--actions", "sampled"], capsys)
+
+
+def test_evaluate_start_states(exported, capsys):
+    """``--start_states mixed`` (kinematic): other resets, so other returns than the paper's; the
+    MuJoCo twin and an unknown name are one line."""
+    path, _ = exported
+    base = ["--task", "reach_green", "--episodes", "4", "--episode_length", "6", "--policy", path]
+
+    def last_line(args):
+        evaluate.main(base + args)
+        return capsys.readouterr().out.strip().splitlines()[-1]
+
+    assert last_line(["--start_states", "mixed"]) != last_line([]) == last_line(["--start_states", "table"])
+    assert "start_states must be one of table, mixed, got 'tower'" in _bad(base + ["--start_states", "tower"], capsys)
+    assert "MuJoCo twin resets with 'table' only" in _bad(base + ["--physics", "mujoco", "--start_states", "mixed"],
+                                                          capsys)

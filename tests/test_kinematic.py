@@ -67,6 +67,40 @@ def test_reset_cubes_on_floor_not_overlapping():
     assert not np.any(jax.vmap(K.cubes_interpenetrate)(s))
 
 
+def test_mixed_start_states_stack_or_place_a_pair_without_overlap():
+    """start_states="mixed": a third of resets as "table", a third with one cube resting on another
+    (the stack test holds for that pair), a third with one beside another (faces within 1-8 mm); no
+    cube overlaps another or the gripper; "table" is the paper's reset, bit for bit."""
+    from tasks.manipulation import rewards as R
+
+    keys = jax.random.split(jax.random.PRNGKey(2), 1024)
+    mixed = jax.vmap(tasks.make("stack", start_states="mixed").reset)(keys).pipeline_state
+    table = jax.vmap(tasks.make("stack", start_states="table").reset)(keys).pipeline_state
+    for a, b in zip(jax.tree.leaves(table), jax.tree.leaves(jax.vmap(K.sample_initial_state)(keys))):
+        np.testing.assert_array_equal(a, b)
+    assert not np.any(jax.vmap(K.cubes_interpenetrate)(mixed))
+    cs = lambda yaw: jnp.stack([jnp.cos(yaw), jnp.sin(yaw)], axis=-1)  # noqa: E731
+    hits = jax.vmap(lambda s: K.gripper_hits_cubes(s.pinch, s.yaw, s.aperture, s.cube_pos, cs(s.cube_yaw),
+                                                   jnp.zeros(L.NUM_CUBES, bool)))(mixed)
+    assert not np.any(hits)
+    p = np.asarray(mixed.cube_pos)
+    stacked, adjacent = np.zeros(len(p), bool), np.zeros(len(p), bool)
+    for top in range(L.NUM_CUBES):
+        for bottom in range(L.NUM_CUBES):
+            if top != bottom:
+                stacked |= np.asarray(R.stack_sparse(p[:, top], p[:, bottom], np.zeros(len(p)))) > 0
+                d = np.linalg.norm(p[:, top, :2] - p[:, bottom, :2], axis=-1)
+                adjacent |= (d < 0.062) & (p[:, top, 2] == p[:, bottom, 2])
+    assert 0.27 < stacked.mean() < 0.4 and 0.27 < adjacent.mean() < 0.4, (stacked.mean(), adjacent.mean())
+    assert not np.any(stacked & adjacent)
+    on_floor = np.all(np.isclose(p[..., 2], L.CUBE_HALF), axis=-1)
+    assert np.all(on_floor == ~stacked)
+    with pytest.raises(ValueError, match="start_states must be one of table, mixed, got 'tower'"):
+        tasks.make("stack", start_states="tower")
+    with pytest.raises(ValueError, match="kinematic physics only"):
+        tasks.make("stack", physics="mujoco", start_states="mixed")
+
+
 # Each scripted controller on its own task over 64 random initial states (issue #2 thresholds).
 CONTROLLERS = [
     ("reach_green", "reach_green", 0.9), ("reach_yellow", "reach_yellow", 0.9), ("reach_blue", "reach_blue", 0.9),

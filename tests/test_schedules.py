@@ -59,6 +59,9 @@ def test_bad_input_is_one_line(capsys, tmp_path):
     _fails(["--noise", "-1", "lift_green"], capsys, "--noise")
     _fails(["--episodes", "0", "lift_green"], capsys, "--episodes")
     _fails(["lift_green", "lift_green"], capsys, "twice")
+    _fails(["--start_states", "tower", "lift_green"], capsys, "start_states must be one of table, mixed")
+    _fails(["--physics", "mujoco", "--start_states", "mixed", "lift_green"], capsys, "kinematic physics only")
+    _fails(["--skill_dir", str(tmp_path / "none"), "lift_green"], capsys, "does not exist")
     (tmp_path / "plain").write_text("x")
     _fails(["--json", str(tmp_path / "plain" / "out.json"), "lift_green"], capsys, "not a directory")
 
@@ -176,3 +179,17 @@ def test_new_skill_std_scale_bad_input_is_one_line(capsys):
            "≥ 0")
     _fails(["--task", "lift", "--new_skill_std_scale", "nan", "lift_green"], capsys, "--new_skill_std_scale")
     _fails(["--task", "lift", "--new_skill_std_scale", "0.3", "lift_green"], capsys, "--new_skill_actions sampled")
+
+
+def test_mixed_start_states_begin_some_episodes_stacked(tmp_path):
+    """``--start_states mixed``: yellow already rests on blue at the start of some episodes (a
+    probe that holds at step 0), never with the paper's resets."""
+    out = {}
+    for start in ("table", "mixed"):
+        path = tmp_path / f"{start}.json"
+        S.main(["--task", "stack", "--episodes", "128", "--seeds", "0", "--steps", "2", "--start_states", start,
+                "--probes", "stack_yellow_on_blue", "--json", str(path), "open_fingers"])
+        rec = json.loads(path.read_text())
+        assert rec["start_states"] == start
+        out[start] = rec["results"]["open_fingers"]["per_seed"][0]["probes"]["stack_yellow_on_blue"]
+    assert out["table"] == 0.0 and 0.0 < out["mixed"] < 0.2, out

@@ -60,6 +60,10 @@ def build_parser():
     p.add_argument("--skill_source", default="scripted", choices=list(SOURCES),
                    help="where the basic skills come from (the chain's own new skills always come from DIR/skills)")
     p.add_argument("--num_envs", type=positive_int, default=None)
+    p.add_argument("--start_states", default="table",
+                   help="every stage's reset distribution (training.run --start_states): table (the paper's) or "
+                        "mixed (kinematic; also one cube on or beside another); each skill is published with its "
+                        "success on the paper's resets, and on these")
     p.add_argument("--config", default=None, help="JSON file of TrainConfig fields, passed to every stage")
     p.add_argument("--eval_episodes", type=positive_int, default=64,
                    help="episodes of the final evaluation of each stage's new skill (default 64)")
@@ -97,6 +101,8 @@ def stage_argv(task: str, args, skill_dir: str, run_dir: str, resume: bool) -> l
         argv += ["--num_envs", str(args.num_envs)]
     if args.config:
         argv += ["--config", args.config]
+    if args.start_states != "table":
+        argv += ["--start_states", args.start_states]
     return argv
 
 
@@ -120,6 +126,12 @@ def validate(args) -> list[str]:
         raise UsageError(f"--timesteps names {', '.join(unknown)}, not a stage of this chain; stages: {', '.join(stages)}")
     if args.physics not in tasks.PHYSICS:
         raise UsageError(f"unknown physics {args.physics!r}; valid: {', '.join(tasks.PHYSICS)}")
+    try:
+        tasks.make(stages[0], physics="kinematic", start_states=args.start_states)
+    except ValueError as e:
+        raise UsageError(f"--start_states: {e}") from None
+    if args.start_states != "table" and args.physics != "kinematic":
+        raise UsageError(f"--start_states {args.start_states!r} is implemented for the kinematic physics only")
     if args.config and not os.path.isfile(args.config):
         raise UsageError(f"config file {args.config} does not exist")
     if os.path.exists(args.out) and not os.path.isdir(args.out):
@@ -205,7 +217,13 @@ def publish_skill(task: str, args, run_dir: str, skill_dir: str, chain_command: 
                 f"--episodes {args.eval_episodes}")
     meta.update(stage_command=meta.pop("command", None), command=chain_command, chain_stage=task,
                 trained_with_method="SkillS (training.run)", success=success, eval_return=ret,
-                eval_episodes=args.eval_episodes, eval_command=eval_cmd)
+                eval_episodes=args.eval_episodes, eval_command=eval_cmd, start_states=args.start_states)
+    if args.start_states != "table":  # the success above is on the paper's resets; this on the stages' own
+        wide = evaluate_policy(task, args.physics, src, episodes=args.eval_episodes, seed=0,
+                               start_states=args.start_states)
+        meta["start_states_success"] = dict(start_states=args.start_states, success=float(wide["success"].mean()),
+                                            eval_return=float(wide["return"].mean()),
+                                            eval_command=f"{eval_cmd} --start_states {args.start_states}")
     Skill.save(dataclasses.replace(skill, name=task, metadata={}), dst, **meta)
     return {"success": success, "return": ret, "skill": dst}
 

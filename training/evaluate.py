@@ -275,6 +275,9 @@ def main(argv=None):
                         "whose scripted skills are JAX functions")
     p.add_argument("--episodes", type=positive_int, default=64)
     p.add_argument("--episode_length", type=positive_int, default=None)
+    p.add_argument("--start_states", default="table",
+                   help="the env's reset distribution: table (the paper's) or mixed (also one cube on or beside "
+                        "another; kinematic physics)")
     p.add_argument("--seed", type=nonnegative_int, default=0)
     p.add_argument("--actions", default="mean",
                    help=f"one of {', '.join(ACTIONS)}: a Gaussian-MLP policy's mean action or actions sampled from "
@@ -288,7 +291,8 @@ def main(argv=None):
         if args.usage_plot and not args.policy.endswith(":scheduler"):
             raise UsageError(f"--usage_plot needs a ':scheduler' policy (DIR:scheduler), not {args.policy!r}")
         result = evaluate_policy(args.task, args.physics, args.policy, episodes=args.episodes, seed=args.seed,
-                                 episode_length=args.episode_length, actions=args.actions)
+                                 episode_length=args.episode_length, actions=args.actions,
+                                 start_states=args.start_states)
         if args.usage_plot:
             from training.plot import plot_usage_over_episode
 
@@ -312,10 +316,11 @@ def main(argv=None):
 
 
 def evaluate_policy(task: str, physics: str, policy: str, episodes: int = 64, seed: int = 0,
-                    episode_length: int | None = None, actions: str = "mean") -> dict:
+                    episode_length: int | None = None, actions: str = "mean", start_states: str = "table") -> dict:
     """What ``python -m training.evaluate`` computes, as a function: per-episode ``success`` and
     ``return`` arrays of ``policy`` (a ``--policy`` spec) on ``task`` / ``physics``, plus ``lines``
-    (the extra report lines); ``actions`` as ``--actions``. UsageError / ValueError on bad input."""
+    (the extra report lines); ``actions`` as ``--actions``, ``start_states`` as ``--start_states``.
+    UsageError / ValueError on bad input."""
     import argparse
 
     import tasks
@@ -327,7 +332,7 @@ def evaluate_policy(task: str, physics: str, policy: str, episodes: int = 64, se
     if actions not in ACTIONS:
         raise UsageError(f"--actions must be one of {', '.join(ACTIONS)}, got {actions!r}")
     args = argparse.Namespace(task=task, physics=physics, policy=policy, episodes=int(episodes), seed=int(seed),
-                              episode_length=episode_length, actions=actions)
+                              episode_length=episode_length, actions=actions, start_states=start_states)
     kind, target, suffix = parse_policy(policy, physics)
     if actions == "sampled" and (kind == "scripted" or suffix == "scheduler"):
         raise UsageError(f"--actions sampled needs a Gaussian-MLP policy (a skill .npz or an export's new skill), "
@@ -340,6 +345,9 @@ def evaluate_policy(task: str, physics: str, policy: str, episodes: int = 64, se
 
         export = load_export(target)
     if physics == "mujoco" and kind != "scripted" and task not in tasks.LOCOMOTION_TASKS:
+        if start_states != "table":
+            raise UsageError(f"--start_states {start_states!r}: the MuJoCo twin resets with 'table' only "
+                             "(the JAX kinematic env has the others)")
         result, lines = _evaluate_on_twin(args, kind, target, export, suffix)
     else:
         result, lines = _evaluate_on_jax_env(args, kind, target, export, suffix)
@@ -384,6 +392,8 @@ def _evaluate_on_jax_env(args, kind, target, export, suffix):
     import tasks
 
     overrides = {} if args.episode_length is None else {"episode_length": args.episode_length}
+    if args.start_states != "table":
+        overrides["start_states"] = args.start_states
     if args.physics == "mjx":
         from tasks.manipulation.mjx_env import pin_to_one_core
 

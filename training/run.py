@@ -231,6 +231,8 @@ def prepare_new(args, argv, num_devices: int = 1, write: bool = True):
     resolved = dataclasses.replace(resolved, eval_every=eval_every)
     _check_mesh(resolved, num_devices)
     overrides = {} if settings.episode_length is None else {"episode_length": settings.episode_length}
+    if settings.start_states != "table":
+        overrides["start_states"] = settings.start_states
     env = tasks.make(a["task"], physics=a["physics"], **overrides)  # validates the overrides
     skill_dir = os.path.abspath(args.skill_dir) if args.skill_dir else None
     loaded = skill_library.load_skills(names, a["physics"], a["skill_source"], env.observation_size,
@@ -244,7 +246,8 @@ def prepare_new(args, argv, num_devices: int = 1, write: bool = True):
         command=_command(argv), task=a["task"], physics=a["physics"], skill_set=a["skills"],
         skill_source=a["skill_source"], skill_dir=skill_dir, skills=names, seed=settings.seed,
         num_timesteps=num_timesteps, episode_length=int(getattr(env, "episode_length", 0)) or settings.episode_length,
-        checkpoint_every=settings.checkpoint_every, replay_checkpoint=not args.no_replay_checkpoint,
+        checkpoint_every=settings.checkpoint_every, start_states=settings.start_states,
+        replay_checkpoint=not args.no_replay_checkpoint,
         video=bool(args.video), train_config=dataclasses.asdict(resolved), auto=notes,
         learners=learner_schedule(resolved), host=rundir.host_facts())
     if write:

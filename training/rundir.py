@@ -51,9 +51,12 @@ class RunRecord:
     # What the same-seed numbers depend on besides the config (``host_facts``: on a CPU they are
     # reproducible per core count); None in records from before the field.
     host: Optional[dict] = None
+    # The env's reset distribution (``RunConfig.start_states``); "table" in records from before it.
+    start_states: str = "table"
 
     REQUIRED = ("task", "physics", "skills", "seed", "num_timesteps", "train_config")
     DEFAULTS = dict(command="", skill_set=None, skill_source="scripted", skill_dir=None, episode_length=None,
+                    start_states="table",
                     checkpoint_every=None, replay_checkpoint=True, video=False)
 
     @classmethod
@@ -80,7 +83,11 @@ class RunRecord:
         return train_config_from_json(self.train_config, where)
 
     def env_overrides(self) -> dict:
-        return {} if self.episode_length is None else {"episode_length": int(self.episode_length)}
+        """The ``tasks.make`` keywords that rebuild the run's env (none for the task's defaults)."""
+        out = {} if self.episode_length is None else {"episode_length": int(self.episode_length)}
+        if self.start_states != "table":
+            out["start_states"] = self.start_states
+        return out
 
 
 def train_config_from_json(data: dict, where: str):

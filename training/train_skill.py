@@ -6,7 +6,11 @@
 
 The skill's task is the task named like it (``tasks.names()``: ``reach_green``, ``open_fingers``,
 ``lift_arm_open``, ``lift_arm_closed``, ``hover_green_on_yellow``, ...: the dense skill rewards of
-the paper's App. C). Two stages (docs/learning.md, docs/skills.md):
+the paper's App. C; the higher skills, lift X / stack X on Y, come from SkillS runs:
+``training.chain``). ``--start_states mixed`` (kinematic) draws every reset of cloning,
+fine-tuning and selection from the wider distribution of ``tasks.make``'s ``start_states`` (one
+cube on or beside another in two thirds of them): the states a chain's later stages bring a skill
+to. Two stages (docs/learning.md, docs/skills.md):
 
 1. **Behaviour cloning** of the skill's scripted controller (``tasks.manipulation.scripted``) with
    DART-style data: ``--bc_envs`` × ``--bc_steps`` env steps that execute the scripted action plus
@@ -25,7 +29,8 @@ Writes ``--out`` (``.npz``) and its JSON sidecar (``Skill.save``): name, task, d
 obs / action sizes, network sizes, the exact command, seed, what it was trained with, and its
 success over ``--eval_episodes`` (64) episodes measured exactly as ``python -m training.evaluate
 --task SKILL --physics PHYSICS --policy OUT --episodes 64 --seed EVAL_SEED`` prints it (recorded as
-``eval_command``). Existing files are never overwritten; bad input is one ``error:`` line, exit 2.
+``eval_command``; on the paper's resets whatever ``--start_states``; with ``--start_states mixed`` also
+``start_states_success``, the same with ``--start_states mixed``). Existing files are never overwritten; bad input is one ``error:`` line, exit 2.
 The last line printed is ``success=<fraction> return=<mean>``.
 """
 
@@ -62,6 +67,9 @@ def build_parser():
     p.add_argument("--physics", default="kinematic", help=f"one of {', '.join(tasks.PHYSICS)}; default kinematic")
     p.add_argument("--out", required=True, help="PATH.npz to write (with PATH.json); never overwritten")
     p.add_argument("--seed", type=nonnegative_int, default=0)
+    p.add_argument("--start_states", default="table",
+                   help="reset distribution of every stage: table (the paper's) or mixed (kinematic; also one cube "
+                        "on or beside another)")
     p.add_argument("--bc_envs", type=positive_int, default=512, help="envs collecting cloning data (default 512)")
     p.add_argument("--bc_steps", type=positive_int, default=200, help="steps per env of cloning data (default 200)")
     p.add_argument("--bc_noise", type=_nonnegative_float, default=0.3,
@@ -130,10 +138,10 @@ def _check_out(out: str) -> str:
     return base
 
 
-def make_env(skill: str, physics: str, num_envs: int):
+def make_env(skill: str, physics: str, num_envs: int, start_states: str = "table"):
     import tasks
 
-    overrides = {}
+    overrides = {} if start_states == "table" else {"start_states": start_states}
     if physics == "mjx":
         from tasks.manipulation.mjx_env import pin_to_one_core
 
@@ -262,6 +270,9 @@ def main(argv=None):
             raise UsageError(f"unknown skill {args.skill!r}{hint}; valid: {', '.join(trainable_skills())}")
         if args.physics not in tasks.PHYSICS:
             raise UsageError(f"unknown physics {args.physics!r}; valid: {', '.join(tasks.PHYSICS)}")
+        tasks.make(args.skill, physics="kinematic", start_states=args.start_states)  # ValueError: one line
+        if args.start_states != "table" and args.physics != "kinematic":
+            raise UsageError(f"--start_states {args.start_states!r} is implemented for the kinematic physics only")
         allowed = also_eval_choices(args.physics)
         for p in args.also_eval:
             if p not in allowed:
@@ -286,7 +297,7 @@ def _train_skill(args, argv, base):
 
     t0 = time.perf_counter()
     config = NewSkillConfig()
-    env = make_env(args.skill, args.physics, args.bc_envs)
+    env = make_env(args.skill, args.physics, args.bc_envs, args.start_states)
     key = jax.random.PRNGKey(args.seed)
     k_data, k_bc, k_sel = jax.random.split(key, 3)
     print(f"skill={args.skill} physics={args.physics} seed={args.seed}: cloning the scripted controller "
@@ -296,7 +307,7 @@ def _train_skill(args, argv, base):
     t_bc = time.perf_counter() - t0
     del data
 
-    eval_env = make_env(args.skill, args.physics, args.eval_episodes)
+    eval_env = make_env(args.skill, args.physics, args.eval_episodes, args.start_states)
     selection_seed = 1_000_003 + args.seed  # selection episodes differ from the recorded ones
 
     bc_skill = skill_from(args.skill, bc_params, bc_stats, env.action_size, config)
@@ -323,7 +334,7 @@ def _train_skill(args, argv, base):
         from parallel_skills.config import resolve
 
         n_ft = resolve(TrainConfig(num_envs=args.crr_envs))[0].num_envs  # the trainer's device default if None
-        env_ft = make_env(args.skill, args.physics, n_ft)
+        env_ft = make_env(args.skill, args.physics, n_ft, args.start_states)
         ft_params, ft_stats, m = finetune(env_ft, bc_params, bc_stats, args.seed, args.crr_steps, n_ft)
         ft_skill = skill_from(args.skill, ft_params, ft_stats, env.action_size, config)
         ft_sel = select_eval(ft_skill)
@@ -342,6 +353,7 @@ def _train_skill(args, argv, base):
     # Record exactly what `training.evaluate` prints for the saved file: save, evaluate the file.
     meta = dict(task=args.skill, domain=DOMAIN, physics=args.physics, obs_size=int(env.observation_size),
                 min_std=config.min_std, command=_command(argv), seed=args.seed, trained_with=trained_with,
+                start_states=args.start_states,
                 scripted_teacher=args.skill, training=report)
     tmp = tempfile.mkdtemp(prefix="train_skill_")
     try:
@@ -360,6 +372,17 @@ def _train_skill(args, argv, base):
             print(f"{p}: success={s_p:.4f} return={r_p:.3f} ({evaluations[p]['wall_time_s']:.0f} s)", flush=True)
         if evaluations:
             meta["evaluations"] = evaluations
+        if args.start_states != "table":  # the recorded success is on the paper's resets; this on the wider ones
+            wide = evaluate_policy(args.skill, args.physics, tmp_path, episodes=args.eval_episodes,
+                                   seed=args.eval_seed, start_states=args.start_states)
+            meta["start_states_success"] = dict(
+                start_states=args.start_states, success=float(np.mean(wide["success"])),
+                eval_return=float(np.mean(wide["return"])), success_episodes=args.eval_episodes,
+                eval_seed=args.eval_seed,
+                eval_command=(f"python -m training.evaluate --task {args.skill} --physics {args.physics} --policy "
+                              f"{args.out} --episodes {args.eval_episodes} --seed {args.eval_seed} "
+                              f"--start_states {args.start_states}"))
+            print(f"start states {args.start_states}: success={meta['start_states_success']['success']:.4f}", flush=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     success, ret = float(np.mean(res["success"])), float(np.mean(res["return"]))

@@ -283,7 +283,8 @@ def task_inputs(s: KinematicState) -> task_defs.Inputs:
 
 
 def sample_initial_state(rng: jax.Array) -> KinematicState:
-    """Gripper above the basket, fingers open; cubes at random non-overlapping floor poses."""
+    """Gripper above the basket, fingers open; cubes at random non-overlapping floor poses
+    (``START_STATES["table"]``)."""
     k_g, k_c, k_y = jax.random.split(rng, 3)
     pinch = jax.random.uniform(k_g, (3,), minval=jnp.array([-0.05, -0.05, 0.12]), maxval=jnp.array([0.05, 0.05, 0.18]))
     xy = jax.random.uniform(k_c, (RESET_TRIES, L.NUM_CUBES, 2), minval=-RESET_CUBE_RANGE, maxval=RESET_CUBE_RANGE)
@@ -304,6 +305,73 @@ def sample_initial_state(rng: jax.Array) -> KinematicState:
     )
 
 
+# Reset distributions (``KinematicBlocks(start_states=...)``, ``training.run --start_states``):
+START_STATES = {
+    "table": "every cube on the floor, apart (the paper's resets)",
+    "mixed": "a third as 'table'; a third with one cube resting on another (a random ordered pair, "
+             "centred within 5 mm); a third with one cube beside another, faces touching within "
+             "1-8 mm (the states a chain's later stages bring its skills to)",
+}
+ARRANGE_TABLE, ARRANGE_STACKED, ARRANGE_ADJACENT = 0, 1, 2
+ADJACENT_GAP = (0.001, 0.008)  # m between the touching faces of an adjacent pair
+STACKED_OFFSET = 0.005  # m, the top cube's centre within this of the bottom's (each axis)
+
+
+PAIRS = jnp.array([(a, b) for a in range(L.NUM_CUBES) for b in range(L.NUM_CUBES) if a != b])  # (top, bottom)
+
+
+def pair_candidates(s: KinematicState, rng: jax.Array, arrangement):
+    """Every (ordered pair, side) placement of ``arrangement`` from the table reset ``s``:
+    (cube_pos [C, 3, 3], cube_yaw [C, 3], valid [C]) with C = 6 pairs × 4 sides. Stacked: the top
+    cube centred on the bottom one within ``STACKED_OFFSET``, resting on it, faces aligned (the
+    side is ignored); adjacent: on the floor beside that side of the bottom cube, faces touching
+    across a gap in ``ADJACENT_GAP``, same yaw. Valid: inside the basket, touching neither the
+    third cube nor the gripper."""
+    top, bottom = jnp.repeat(PAIRS[:, 0], 4), jnp.repeat(PAIRS[:, 1], 4)
+    side = jnp.tile(jnp.arange(4), PAIRS.shape[0])
+    k_off, k_gap = jax.random.split(rng)
+    base, yaw = s.cube_pos[bottom], s.cube_yaw[bottom]  # [C, 3], [C]
+    off = jax.random.uniform(k_off, (2,), minval=-STACKED_OFFSET, maxval=STACKED_OFFSET)
+    stacked = jnp.concatenate([base[:, :2] + off, base[:, 2:] + 2 * L.CUBE_HALF], axis=-1)
+    gap = jax.random.uniform(k_gap, (), minval=ADJACENT_GAP[0], maxval=ADJACENT_GAP[1])
+    angle = yaw + 0.5 * jnp.pi * side
+    beside = base[:, :2] + (2 * L.CUBE_HALF + gap) * jnp.stack([jnp.cos(angle), jnp.sin(angle)], axis=-1)
+    adjacent = jnp.concatenate([beside, base[:, 2:]], axis=-1)
+    pos = jnp.where(arrangement == ARRANGE_STACKED, stacked, adjacent)
+
+    def place(t, p, y):
+        cube_pos, cube_yaw = s.cube_pos.at[t].set(p), s.cube_yaw.at[t].set(y)
+        cs = _cs(cube_yaw)
+        clear = ~_cube_hits_cubes(t, p, cs[t], cube_pos, cs)
+        inside = jnp.all(jnp.abs(p[:2]) <= L.BASKET_HALF - L.CUBE_HALF * 1.42)
+        free = ~gripper_hits_cubes(s.pinch, s.yaw, s.aperture, cube_pos, cs, jnp.zeros(L.NUM_CUBES, bool))
+        return cube_pos, cube_yaw, clear & inside & free
+
+    return jax.vmap(place)(top, pos, yaw)
+
+
+def arrange_pair(s: KinematicState, rng: jax.Array, arrangement) -> KinematicState:
+    """``s`` (a table reset) with one cube moved onto (``ARRANGE_STACKED``) or beside
+    (``ARRANGE_ADJACENT``) another: a placement drawn uniformly from the valid ones of
+    ``pair_candidates``; ``ARRANGE_TABLE``, or no valid placement: ``s`` unchanged."""
+    k_cand, k_pick = jax.random.split(rng)
+    cube_pos, cube_yaw, valid = pair_candidates(s, k_cand, arrangement)
+    pick = jnp.argmax(jnp.where(valid, jax.random.uniform(k_pick, valid.shape), -1.0))
+    ok = (arrangement != ARRANGE_TABLE) & valid[pick]
+    return s.replace(cube_pos=jnp.where(ok, cube_pos[pick], s.cube_pos),
+                     cube_yaw=jnp.where(ok, cube_yaw[pick], s.cube_yaw))
+
+
+def sample_start_state(rng: jax.Array, start_states: str = "table") -> KinematicState:
+    """A reset of the distribution ``start_states`` (a key of ``START_STATES``); ``"table"`` is
+    ``sample_initial_state(rng)`` itself."""
+    if start_states == "table":
+        return sample_initial_state(rng)
+    k_table, k_mode, k_pair = jax.random.split(rng, 3)
+    arrangement = jax.random.randint(k_mode, (), 0, 3)
+    return arrange_pair(sample_initial_state(k_table), k_pair, arrangement)
+
+
 class KinematicBlocks(ManipulationEnv):
     """Brax-API env of the kinematic blocks domain for one named task.
 
@@ -312,15 +380,18 @@ class KinematicBlocks(ManipulationEnv):
     task's success test at this step (0/1).
     """
 
-    def __init__(self, task: str, episode_length: int = L.DEFAULT_EPISODE_LENGTH):
+    def __init__(self, task: str, episode_length: int = L.DEFAULT_EPISODE_LENGTH, start_states: str = "table"):
         if int(episode_length) < 1:
             raise ValueError(f"episode_length must be a positive integer, got {episode_length}")
+        if start_states not in START_STATES:
+            raise ValueError(f"start_states must be one of {', '.join(START_STATES)}, got {start_states!r}")
         self.task = task_defs.get(task)
         self.task_name = task
         self.episode_length = int(episode_length)
+        self.start_states = start_states
 
     def reset(self, rng: jax.Array) -> State:
-        s = sample_initial_state(rng)
+        s = sample_start_state(rng, self.start_states)
         reward, success = self._reward(s)
         zero = jnp.zeros(())
         return State(

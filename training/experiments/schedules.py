@@ -32,7 +32,8 @@ expires, a skill uniformly from ``--skills`` (the task's ``useful`` or ``useful+
 skill table (lift, stack, pyramid, triple_stack and the chain's stages).
 
 Skills come from ``--skill_source``: ``scripted`` (``tasks.manipulation.scripted``) or ``library``
-(the shipped neural skills, ``training.skill_library.load_skills``); they see raw observations and
+(the shipped neural skills, ``training.skill_library.load_skills``), a ``NAME.npz`` in ``--skill_dir``
+replacing skill NAME; they see raw observations and
 act with ``SkillSet.actions``, plus ``--noise`` (the trainer's ``skill_noise_std``: Gaussian noise on
 the frozen skills' actions, clipped to [-1, 1], as ``parallel_skills.acting.Actor.actions`` adds
 it; default 0). Episode success: the task's success test (``state.metrics["success"]``) held at
@@ -50,6 +51,8 @@ schedule gets to when it does not succeed (e.g. ``--probes stack_yellow_on_blue,
 Printed: one line per schedule and seed (success, mean return; for a sequence the mean env step at
 which each of its steps started and, in brackets, the fraction of episodes that reached it), then a
 summary line per schedule (mean over seeds).
+``--start_states mixed`` (kinematic) draws the resets from ``tasks.make``'s wider distribution (one cube on or
+beside another in two thirds of them), e.g. to see a skill in the states an earlier one leaves.
 ``--json PATH`` writes all of it. Bad input is one ``error:`` line, exit code 2.
 """
 
@@ -334,8 +337,10 @@ def parse_seeds(text: str) -> list[int]:
     return seeds
 
 
-def make_env(task: str, physics: str, steps: int | None, episodes: int):
-    """``tasks.make(task, physics)`` with ``episode_length`` = ``steps`` if given."""
+def make_env(task: str, physics: str, steps: int | None, episodes: int, start_states: str = "table"):
+    """``tasks.make(task, physics)`` with ``episode_length`` = ``steps`` if given and the reset
+    distribution ``start_states`` (``--start_states``: ``table``, or ``mixed``, kinematic: one cube on or
+    beside another in two thirds of the resets)."""
     import tasks
     from tasks.manipulation import task_defs
 
@@ -344,6 +349,8 @@ def make_env(task: str, physics: str, steps: int | None, episodes: int):
     if physics not in tasks.PHYSICS:
         raise UsageError(f"unknown physics {physics!r}; valid: {', '.join(tasks.PHYSICS)}")
     overrides = {} if steps is None else {"episode_length": steps}
+    if start_states != "table":
+        overrides["start_states"] = start_states
     if physics == "mjx":
         from tasks.manipulation.mjx_env import pin_to_one_core
 
@@ -361,11 +368,16 @@ def main(argv=None):
     p.add_argument("--task", default="lift", help="a manipulation task (lift, stack, pyramid, triple_stack, ...)")
     p.add_argument("--physics", default="kinematic", help="kinematic, mjx, warp or mujoco")
     p.add_argument("--skill_source", default="scripted", choices=SOURCES)
+    p.add_argument("--skill_dir", default=None,
+                   help="a directory of your own skills: NAME.npz there replaces skill NAME (as training.run's)")
     p.add_argument("--skills", default="useful", choices=SKILL_SETS, help="the random scheduler's skill set")
     p.add_argument("--episodes", type=positive_int, default=64, help="episodes (envs) per seed")
     p.add_argument("--seeds", default="0,1,2", help="comma-separated seeds; each its own episodes")
     p.add_argument("--noise", type=float, default=0.0, help="std of the Gaussian noise on the skills' actions")
     p.add_argument("--steps", type=positive_int, default=None, help="episode length (default: the env's)")
+    p.add_argument("--start_states", default="table",
+                   help="the env's reset distribution: table (the paper's) or mixed (kinematic; also one cube on "
+                        "or beside another)")
     p.add_argument("--new_skill", default=None,
                    help="a trained new skill (a training.run directory or its new_skill.npz), step name 'new'")
     p.add_argument("--new_skill_actions", default="mean", choices=NEW_SKILL_ACTIONS,
@@ -395,7 +407,7 @@ def main(argv=None):
     for s in schedules:
         check_schedule(s)
     names = {s.text: schedule_skills(s, args.task, args.skills) for s in schedules}
-    env = make_env(args.task, args.physics, args.steps, args.episodes)
+    env = make_env(args.task, args.physics, args.steps, args.episodes, args.start_states)
     steps = int(env.episode_length)
     from training.skill_library import load_skills
 
@@ -406,11 +418,12 @@ def main(argv=None):
         for n in names[s.text]:
             if n not in loaded:
                 loaded[n] = load_skills([n], args.physics, args.skill_source, obs_size=env.observation_size,
-                                        action_size=env.action_size)[0]
+                                        action_size=env.action_size, skill_dir=args.skill_dir)[0]
     if args.new_skill and NEW_SKILL not in loaded:
         raise UsageError(f"--new_skill is given but no schedule runs it (its step name is {NEW_SKILL!r})")
     print(f"task {args.task}  physics {args.physics}  skills {args.skill_source}  noise {args.noise:g}  "
-          f"{args.episodes} episodes x seeds {','.join(map(str, seeds))}  {steps} steps", flush=True)
+          f"{args.episodes} episodes x seeds {','.join(map(str, seeds))}  {steps} steps"
+          + ("" if args.start_states == "table" else f"  start states {args.start_states}"), flush=True)
     results = {}
     for s in schedules:
         t0 = time.time()
@@ -445,8 +458,8 @@ def main(argv=None):
     if args.json:
         os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
         write_json_atomic(args.json, dict(task=args.task, physics=args.physics, skill_source=args.skill_source,
-                                          skills=args.skills, episodes=args.episodes, seeds=seeds, noise=args.noise,
-                                          steps=steps, new_skill=args.new_skill,
+                                          skills=args.skills, skill_dir=args.skill_dir, episodes=args.episodes, seeds=seeds, noise=args.noise,
+                                          steps=steps, start_states=args.start_states, new_skill=args.new_skill,
                                           new_skill_actions=args.new_skill_actions if args.new_skill else None,
                                           new_skill_std_scale=args.new_skill_std_scale if args.new_skill else None,
                                           results=results), indent=1)
