@@ -369,7 +369,10 @@ def recipe_values(recipe: str, num_envs: int, unroll_length: int) -> dict:
       warm-up for the scheduler (Eq. 3's long-horizon values first), and for the new skill 10-step
       TD targets, which carry the sparse reward back with 4× fewer samples than the one-step
       recipe needed (64), with the paper's CRR exp weights (until 2026-12-04 the indicator's, whose
-      mean action held the cube over the target on stack and never let go: docs/scheduler.md §8).
+      mean action held the cube over the target on stack and never let go: docs/scheduler.md §8);
+      and for the scheduler 10-step targets within skill executions (``SchedulerConfig.n_step``;
+      one-step Eq. 3 until 2026-12-04), with which it learns triple stack within 3M env steps
+      (docs/scheduler.md §1, §9).
     * ``parallel`` (the default on an accelerator): one env step per env per iteration and a fixed
       32 updates of batches that grow with the envs: scheduler batch 25·steps/8 × 8 updates
       (25 samples per env step, 4× below the paper's 100), new skill batch = steps × 24 updates
@@ -382,7 +385,7 @@ def recipe_values(recipe: str, num_envs: int, unroll_length: int) -> dict:
         return {}
     if recipe == "cpu":
         return {("scheduler", "samples_per_insert"): 8.0, ("scheduler", "policy_warmup_updates"): 1500,
-                ("new_skill", "samples_per_insert"): 16.0, ("new_skill", "n_step"): 10}
+                ("scheduler", "n_step"): 10, ("new_skill", "samples_per_insert"): 16.0, ("new_skill", "n_step"): 10}
     steps = int(num_envs) * int(unroll_length)
     return {("scheduler", "batch_size"): max(1, steps * 25 // 8), ("scheduler", "samples_per_insert"): 25.0,
             ("scheduler", "policy_warmup_updates"): 190, ("scheduler", "target_actor_period"): 12,

@@ -198,7 +198,7 @@ def test_cpu_recipe_applies_only_to_learner_configs_left_at_paper_defaults():
     assert cfg.recipe == "cpu" and (cfg.num_envs, cfg.replay_size) == RECIPE_SIZES[("cpu", True)]
     for (learner, field), value in cpu.items():
         assert getattr(getattr(cfg, learner), field) == value, (learner, field)
-    assert cfg.new_skill.n_step == 10 and cfg.new_skill.samples_per_insert == 16.0
+    assert cfg.new_skill.n_step == 10 and cfg.new_skill.samples_per_insert == 16.0 and cfg.scheduler.n_step == 10
     assert len(notes) == 5  # every automatic choice is logged: recipe, 2 sizes, 2 learners
     mine = TrainConfig(num_envs=8, new_skill=NewSkillConfig(samples_per_insert=16.0))
     cfg, notes = resolve(mine, backend="cpu")
@@ -246,7 +246,7 @@ def test_cpu_recipe_fills_the_fields_a_config_file_leaves():
     assert cfg.new_skill.crr_mode == "exp"  # the paper's, which the CPU recipe keeps
     assert cfg.scheduler.samples_per_insert == 100.0  # set (to the paper's value) in the file: kept
     assert cfg.scheduler.policy_warmup_updates == 1500
-    assert "scheduler policy_warmup_updates=1500 (paper 0)" in notes
+    assert "scheduler policy_warmup_updates=1500 (paper 0), n_step=10 (paper 1)" in notes
     assert "new-skill samples_per_insert=16 (paper 50)" in notes and "crr_mode" not in " ".join(notes)
     # Without ``given`` (a config built in code) a changed learner config is the user's: no recipe.
     assert resolve(mine, backend="cpu")[0].new_skill == mine.new_skill
