@@ -37,6 +37,22 @@ def names() -> list[str]:
     return sorted(task_defs.names() + list(LOCOMOTION_TASKS))
 
 
+def check_start_states(name: str, physics: str, start_states: str) -> None:
+    """ValueError (one line) unless task ``name`` on ``physics`` has the reset distribution
+    ``start_states`` (``"table"``: every manipulation backend; the others: kinematic only)."""
+    from tasks.manipulation.kinematic import START_STATES
+
+    if start_states not in START_STATES:
+        raise ValueError(f"start_states must be one of {', '.join(START_STATES)}, got {start_states!r}")
+    if start_states == "table":
+        return
+    if name in LOCOMOTION_TASKS:
+        raise ValueError(f"start_states {start_states!r} is for the manipulation tasks; {name!r} has its own resets")
+    if physics != "kinematic":
+        raise ValueError(f"start_states {start_states!r} is implemented for the kinematic physics only; "
+                         f"physics {physics!r} resets with 'table'")
+
+
 def make(name: str, physics: str = "kinematic", **overrides):
     """Build task ``name`` on backend ``physics``. Overrides: ``episode_length``, ``start_states``
     (a manipulation task's reset distribution, ``tasks.manipulation.kinematic.START_STATES``:
@@ -45,20 +61,18 @@ def make(name: str, physics: str = "kinematic", **overrides):
     if name in LOCOMOTION_TASKS:
         if physics not in LOCOMOTION_PHYSICS:
             raise ValueError(f"locomotion task {name!r} runs on physics {' or '.join(LOCOMOTION_PHYSICS)}, not {physics!r}")
-        if start_states != "table":
-            raise ValueError(f"start_states {start_states!r} is for the manipulation tasks; {name!r} has its own resets")
+        check_start_states(name, physics, start_states)
         from tasks.locomotion.env import make_locomotion_env
 
         return make_locomotion_env(name, physics=physics, **overrides)
     if name not in task_defs.TASKS:
         raise ValueError(f"unknown task {name!r}; valid tasks: {', '.join(names())}")
+    if physics in PHYSICS:
+        check_start_states(name, physics, start_states)
     if physics == "kinematic":
         from tasks.manipulation.kinematic import KinematicBlocks
 
         return KinematicBlocks(name, start_states=start_states, **overrides)
-    if start_states != "table":
-        raise ValueError(f"start_states {start_states!r} is implemented for the kinematic physics only; "
-                         f"physics {physics!r} resets with 'table'")
     if physics == "warp" and not warp_installed():
         raise ValueError(WARP_MISSING)
     if physics in ("mjx", "warp"):

@@ -127,11 +127,9 @@ def validate(args) -> list[str]:
     if args.physics not in tasks.PHYSICS:
         raise UsageError(f"unknown physics {args.physics!r}; valid: {', '.join(tasks.PHYSICS)}")
     try:
-        tasks.make(stages[0], physics="kinematic", start_states=args.start_states)
+        tasks.check_start_states(stages[0], args.physics, args.start_states)
     except ValueError as e:
         raise UsageError(f"--start_states: {e}") from None
-    if args.start_states != "table" and args.physics != "kinematic":
-        raise UsageError(f"--start_states {args.start_states!r} is implemented for the kinematic physics only")
     if args.config and not os.path.isfile(args.config):
         raise UsageError(f"config file {args.config} does not exist")
     if os.path.exists(args.out) and not os.path.isdir(args.out):

@@ -270,9 +270,7 @@ def main(argv=None):
             raise UsageError(f"unknown skill {args.skill!r}{hint}; valid: {', '.join(trainable_skills())}")
         if args.physics not in tasks.PHYSICS:
             raise UsageError(f"unknown physics {args.physics!r}; valid: {', '.join(tasks.PHYSICS)}")
-        tasks.make(args.skill, physics="kinematic", start_states=args.start_states)  # ValueError: one line
-        if args.start_states != "table" and args.physics != "kinematic":
-            raise UsageError(f"--start_states {args.start_states!r} is implemented for the kinematic physics only")
+        tasks.check_start_states(args.skill, args.physics, args.start_states)  # ValueError: one line
         allowed = also_eval_choices(args.physics)
         for p in args.also_eval:
             if p not in allowed:
