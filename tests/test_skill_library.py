@@ -246,7 +246,8 @@ def test_train_skill_errors(tmp_path, capsys):
     _fails(main, ["--skill", "reach_green", "--out", str(existing)], capsys, "already exists")
     (tmp_path / "only.json").write_text("{}")
     _fails(main, ["--skill", "reach_green", "--out", str(tmp_path / "only.npz")], capsys, "only.json already exists")
-    _fails(main, ["--skill", "lift_green", "--out", str(tmp_path / "x.npz")], capsys, "come from SkillS runs")
+    _fails(main, ["--skill", "lift", "--out", str(tmp_path / "x.npz")], capsys, "(short for lift_green)")
+    _fails(main, ["--skill", "pyramid", "--out", str(tmp_path / "x.npz")], capsys, "full tasks: not a library skill")
     _fails(main, ["--skill", "reach_pink", "--out", str(tmp_path / "x.npz")], capsys, "valid: hover_")
     _fails(main, ["--skill", "reach_green", "--physics", "bullet", "--out", str(tmp_path / "x.npz")], capsys,
            "unknown physics 'bullet'")
@@ -325,3 +326,44 @@ def test_a_missing_library_skill_names_the_command_that_makes_it(tmp_path):
     assert "--stages lift_green --out" in skill_library.how_to_make("lift_green", 0, "kinematic")
     assert [library_file_name(s, k) for s, k in [("stack", 0), ("lift_green", 1), ("stack_yellow_on_blue", 2)]] == \
         ["stack_green_on_yellow", "lift_green.s1", "stack_yellow_on_blue.s2"]
+
+
+def test_bc_prefix_parses_and_rejects_bad_input_in_one_line(tmp_path, capsys):
+    from training.train_skill import main, parse_prefix
+
+    assert parse_prefix("") == ()
+    assert parse_prefix("stack_yellow_on_blue:200,open_fingers:5") == (("stack_yellow_on_blue", 200), ("open_fingers", 5))
+    out = str(tmp_path / "x.npz")
+    _fails(main, ["--skill", "stack_green_on_yellow", "--bc_prefix", "stack_yellow_on_blue", "--out", out], capsys,
+           "is not NAME:K")
+    _fails(main, ["--skill", "stack_green_on_yellow", "--bc_prefix", "stack_yellow_on_blue:0", "--out", out], capsys,
+           "is not NAME:K")
+    _fails(main, ["--skill", "stack_green_on_yellow", "--bc_prefix", "fly:10", "--out", out], capsys,
+           "'fly' is not a scripted controller")
+    _fails(main, ["--skill", "stack_green_on_yellow", "--bc_prefix", "stack_yellow_on_blue:500", "--out", out], capsys,
+           "more than an episode")
+    _fails(main, ["--skill", "stack_green_on_yellow", "--bc_prefix_fraction", "1.5", "--out", out], capsys,
+           "--bc_prefix_fraction must be in [0, 1]")
+    assert not (tmp_path / "x.npz").exists()
+
+
+def test_bc_prefix_data_start_where_the_prefix_leaves_the_scene():
+    """With ``stack_yellow_on_blue:200`` run first, the recorded cloning data of stack green on yellow
+    start with yellow on blue (the scripted controller stacks it in ~124 steps); without, never."""
+    from tasks.manipulation import scripted
+    from training.train_skill import collect_dart, make_env
+
+    env, envs, steps = make_env("stack_green_on_yellow", "kinematic", 8), 8, 2
+    ctl = scripted.get("stack_green_on_yellow")
+    key = jax.random.PRNGKey(0)
+
+    def first_obs(prefix):
+        data = collect_dart(env, ctl, key, envs, steps, 0.0, prefix)
+        return np.asarray(data["obs"]).reshape(envs, steps, -1)[:, 0]
+
+    def yellow_on_blue(obs):
+        d = obs[:, L.cube_pos("yellow")] - obs[:, L.cube_pos("blue")]
+        return (np.linalg.norm(d[:, :2], axis=-1) <= 0.01) & (np.abs(d[:, 2] - L.CUBE_SIZE) <= 0.006)
+
+    assert not yellow_on_blue(first_obs(())).any()
+    assert yellow_on_blue(first_obs(((scripted.get("stack_yellow_on_blue"), 200),))).mean() >= 0.75

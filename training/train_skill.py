@@ -6,8 +6,9 @@
 
 The skill's task is the task named like it (``tasks.names()``: ``reach_green``, ``open_fingers``,
 ``lift_arm_open``, ``lift_arm_closed``, ``hover_green_on_yellow``, ...: the dense skill rewards of
-the paper's App. C; the higher skills, lift X / stack X on Y, come from SkillS runs:
-``training.chain``). ``--start_states mixed`` (kinematic) draws every reset of cloning,
+the paper's App. C; and the higher skills, lift X / stack X on Y, whose shipped versions come from
+SkillS runs, ``training.chain``, and are cloned here only where a chain's skill fails in states
+later tasks bring it to, with ``--bc_prefix``). ``--start_states mixed`` (kinematic) draws every reset of cloning,
 fine-tuning and selection from the wider distribution of ``tasks.make``'s ``start_states`` (one
 cube on or beside another in two thirds of them): the states a chain's later stages bring a skill
 to. Two stages (docs/learning.md, docs/skills.md):
@@ -63,7 +64,7 @@ def build_parser():
     import tasks
 
     p = Parser(prog="python -m training.train_skill", description=__doc__.splitlines()[0])
-    p.add_argument("--skill", required=True, help="skill = its dense task's name: " + ", ".join(trainable_skills()))
+    p.add_argument("--skill", required=True, help="skill = its task's name (a scripted controller's): " + ", ".join(trainable_skills()))
     p.add_argument("--physics", default="kinematic", help=f"one of {', '.join(tasks.PHYSICS)}; default kinematic")
     p.add_argument("--out", required=True, help="PATH.npz to write (with PATH.json); never overwritten")
     p.add_argument("--seed", type=nonnegative_int, default=0)
@@ -75,6 +76,13 @@ def build_parser():
     p.add_argument("--bc_noise", type=_nonnegative_float, default=0.3,
                    help="std of the Gaussian noise added to the executed scripted action (default 0.3)")
     p.add_argument("--bc_updates", type=nonnegative_int, default=4000, help="Adam updates of cloning (default 4000)")
+    p.add_argument("--bc_prefix", default="",
+                   help="NAME:K[,NAME:K...]: in --bc_prefix_fraction of the cloning envs, run these scripted "
+                        "controllers first (K steps each, same noise, not recorded), so the data also start where "
+                        "a schedule's earlier skills leave the scene (e.g. stack_yellow_on_blue:200 before "
+                        "stack_green_on_yellow)")
+    p.add_argument("--bc_prefix_fraction", type=_nonnegative_float, default=0.5,
+                   help="fraction of the cloning envs that run --bc_prefix first (default 0.5)")
     p.add_argument("--crr_steps", type=nonnegative_int, default=100_000,
                    help="env steps of CRR fine-tuning with parallel_skills.train (0: clone only; default 100000)")
     p.add_argument("--crr_envs", type=positive_int, default=None,
@@ -116,11 +124,33 @@ def evaluate_in_subprocess(task: str, physics: str, policy: str, episodes: int, 
 
 
 def trainable_skills() -> list[str]:
-    """Skills this command trains: dense skill tasks that have a scripted controller to clone.
-    (The higher skills, lift X / stack X on Y, come from SkillS runs.)"""
+    """Skills this command trains: the tasks with a scripted controller to clone — the dense skill
+    tasks and the higher skills lift X / stack X on Y (sparse; the chain trains them with SkillS
+    instead), not the paper's full tasks (pyramid, triple stack) nor the short names lift / stack."""
     from tasks.manipulation import scripted, task_defs
 
-    return [n for n in task_defs.names() if task_defs.get(n).kind == "dense" and n in scripted.names()]
+    full = set(task_defs.ALIASES) | {"pyramid", "triple_stack"}
+    return [n for n in task_defs.names() if n in scripted.names() and n not in full]
+
+
+def parse_prefix(text: str) -> tuple[tuple[str, int], ...]:
+    """``--bc_prefix`` ``NAME:K[,NAME:K...]`` -> ((scripted controller, K), ...); UsageError naming the
+    form and the controllers otherwise. '' -> ()."""
+    from tasks.manipulation import scripted
+
+    if not text:
+        return ()
+    steps = []
+    for part in text.split(","):
+        name, colon, k = part.partition(":")
+        if not colon or not k.isdigit() or int(k) < 1:
+            raise UsageError(f"--bc_prefix {text!r}: step {part!r} is not NAME:K (a scripted controller held K ≥ 1 "
+                             f"env steps), e.g. stack_yellow_on_blue:200")
+        if name not in scripted.names():
+            raise UsageError(f"--bc_prefix {text!r}: {name!r} is not a scripted controller; valid: "
+                             f"{', '.join(scripted.names())}")
+        steps.append((name, int(k)))
+    return tuple(steps)
 
 
 def _command(argv) -> str:
@@ -153,26 +183,33 @@ def make_env(skill: str, physics: str, num_envs: int, start_states: str = "table
 
 # ----------------------------------------------------------------------------- behaviour cloning
 
-def collect_dart(env, controller, key, num_envs: int, num_steps: int, noise: float):
+def collect_dart(env, controller, key, num_envs: int, num_steps: int, noise: float, prefix=()):
     """DART-style cloning data: execute clip(controller(obs) + N(0, noise²)), label with the clean
-    controller action. Returns {"obs" [E·T, O], "action" [E·T, A]} (jitted rollout)."""
+    controller action. ``prefix``: ((controller, K), ...) run first, each K steps with the same noise
+    and not recorded, so the data start where those skills leave the scene (e.g. yellow stacked on
+    blue before ``stack_green_on_yellow``). Returns {"obs" [E·T, O], "action" [E·T, A]} (jitted
+    rollout)."""
     import jax
     import jax.numpy as jnp
 
-    ctl = jax.vmap(controller)
-
-    @jax.jit
-    def run(key):
-        k0, k1 = jax.random.split(key)
-        state = jax.vmap(env.reset)(jax.random.split(k0, num_envs))
+    def noisy_steps(state, ctl, key, steps, record):
+        ctl = jax.vmap(ctl)
 
         def body(s, k):
             k_ctl, k_noise = jax.random.split(k)
             label = ctl(s.obs, jax.random.split(k_ctl, num_envs)).astype(jnp.float32)
             act = jnp.clip(label + noise * jax.random.normal(k_noise, label.shape), -1.0, 1.0)
-            return jax.vmap(env.step)(s, act), (s.obs, label)
+            return jax.vmap(env.step)(s, act), ((s.obs, label) if record else None)
 
-        _, (obs, label) = jax.lax.scan(body, state, jax.random.split(k1, num_steps))
+        return jax.lax.scan(body, state, jax.random.split(key, steps))
+
+    @jax.jit
+    def run(key):
+        k0, k1 = jax.random.split(key)
+        state = jax.vmap(env.reset)(jax.random.split(k0, num_envs))
+        for (ctl, k), kp in zip(prefix, jax.random.split(jax.random.fold_in(key, 1), max(len(prefix), 1))):
+            state, _ = noisy_steps(state, ctl, kp, k, record=False)
+        _, (obs, label) = noisy_steps(state, controller, k1, num_steps, record=True)
         return {"obs": obs.reshape(-1, obs.shape[-1]), "action": label.reshape(-1, label.shape[-1])}
 
     return run(key)
@@ -266,11 +303,23 @@ def main(argv=None):
         if args.skill not in trainable_skills():
             hint = ""
             if args.skill in tasks.names():
-                hint = " (higher skills such as lift X / stack X on Y come from SkillS runs, not from this command)"
+                from tasks.manipulation import task_defs
+
+                hint = (f" (short for {task_defs.ALIASES[args.skill]})" if args.skill in task_defs.ALIASES else
+                        " (a task without a scripted controller, or one of the paper's full tasks: not a library skill)")
             raise UsageError(f"unknown skill {args.skill!r}{hint}; valid: {', '.join(trainable_skills())}")
         if args.physics not in tasks.PHYSICS:
             raise UsageError(f"unknown physics {args.physics!r}; valid: {', '.join(tasks.PHYSICS)}")
         tasks.check_start_states(args.skill, args.physics, args.start_states)  # ValueError: one line
+        prefix = parse_prefix(args.bc_prefix)
+        if not args.bc_prefix_fraction <= 1.0:
+            raise UsageError(f"--bc_prefix_fraction must be in [0, 1], got {args.bc_prefix_fraction}")
+        from tasks.manipulation import layout
+
+        used = sum(k for _, k in prefix) + args.bc_steps
+        if prefix and used > layout.DEFAULT_EPISODE_LENGTH:
+            raise UsageError(f"--bc_prefix steps + --bc_steps = {used}: more than an episode "
+                             f"({layout.DEFAULT_EPISODE_LENGTH} steps)")
         allowed = also_eval_choices(args.physics)
         for p in args.also_eval:
             if p not in allowed:
@@ -287,6 +336,7 @@ def main(argv=None):
 
 def _train_skill(args, argv, base):
     import jax
+    import jax.numpy as jnp
     import numpy as np
 
     from parallel_skills import NewSkillConfig
@@ -300,7 +350,17 @@ def _train_skill(args, argv, base):
     k_data, k_bc, k_sel = jax.random.split(key, 3)
     print(f"skill={args.skill} physics={args.physics} seed={args.seed}: cloning the scripted controller "
           f"({args.bc_envs} envs x {args.bc_steps} steps, noise {args.bc_noise}, {args.bc_updates} updates)", flush=True)
-    data = collect_dart(env, scripted.get(args.skill), k_data, args.bc_envs, args.bc_steps, args.bc_noise)
+    prefix = tuple((scripted.get(n), k) for n, k in parse_prefix(args.bc_prefix))
+    n_pre = int(round(args.bc_prefix_fraction * args.bc_envs)) if prefix else 0
+    parts = []
+    if args.bc_envs - n_pre:
+        parts.append(collect_dart(env, scripted.get(args.skill), k_data, args.bc_envs - n_pre, args.bc_steps,
+                                  args.bc_noise))
+    if n_pre:
+        print(f"  {n_pre} of the envs run {args.bc_prefix} first", flush=True)
+        parts.append(collect_dart(env, scripted.get(args.skill), jax.random.fold_in(k_data, 1), n_pre,
+                                  args.bc_steps, args.bc_noise, prefix))
+    data = {k: jnp.concatenate([d[k] for d in parts]) for k in parts[0]} if len(parts) > 1 else parts[0]
     bc_params, bc_stats, nll = behaviour_clone(data, int(env.action_size), config, k_bc, args.bc_updates)
     t_bc = time.perf_counter() - t0
     del data
@@ -324,6 +384,7 @@ def _train_skill(args, argv, base):
           f"return={bc_sel[1]:.1f}", flush=True)
     chosen, trained_with, report = bc_skill, "bc", {"bc": {
         "envs": args.bc_envs, "steps": args.bc_steps, "noise": args.bc_noise, "updates": args.bc_updates,
+        "prefix": args.bc_prefix or None, "prefix_envs": n_pre,
         "batch_size": config.batch_size, "learning_rate": config.learning_rate, "final_nll": nll,
         "selection_success": bc_sel[0], "wall_time_s": round(t_bc, 1)}}
     if args.crr_steps > 0:
