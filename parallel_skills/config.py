@@ -34,7 +34,7 @@ POSITIVE_FIELDS = frozenset({
     "target_actor_period", "target_critic_period", "num_action_samples", "mpo_num_samples",
     "num_critics", "n_step", "num_timesteps", "episode_length", "checkpoint_every"})
 # Float fields that must lie in [0, 1] (every other float field must be finite), in any config class.
-UNIT_INTERVAL_FIELDS = frozenset({"target_tau", "mpo_alpha", "dagger_alpha"})
+UNIT_INTERVAL_FIELDS = frozenset({"target_tau", "mpo_alpha", "dagger_alpha", "skill_entropy_floor"})
 
 
 class FieldError(ValueError):
@@ -165,6 +165,13 @@ class SchedulerConfig:
     # Learner updates during which only the critic learns (policy and duals frozen): lets the
     # long-horizon values of Eq. 3 propagate before policy improvement starts (0 = paper).
     policy_warmup_updates: int = 0
+    # A floor on the exploration of the skill choice (beyond the paper): the mean entropy of π(i|s)
+    # over decision states is kept ≥ this fraction of its maximum, ln(number of choosable skills),
+    # by a Lagrange multiplier on the M-step (hcmpo.entropy_floor_loss, a dual like SAC's target
+    # entropy): where the critic's values are flat, MPO's E-step still moves the policy by ε per
+    # update and its choices collapse before any sequence is found. 0: no floor (the paper).
+    skill_entropy_floor: float = 0.0
+    init_log_entropy_weight: float = -5.0  # its multiplier starts at softplus(−5) ≈ 0.007
 
     def __post_init__(self):
         check_fields(self)

@@ -34,6 +34,7 @@ or, with ``target_tau`` > 0, Polyak averages updated after every step (``optax.i
 
 from __future__ import annotations
 
+import math
 from typing import Callable, Dict, NamedTuple, Optional, Tuple, Union
 
 import flax
@@ -46,8 +47,8 @@ from parallel_skills.baseline_losses import (dagger_cross_entropy, kl_reg_mpo_lo
                                              sample_mixture)
 from parallel_skills.config import NewSkillConfig, SchedulerConfig
 from parallel_skills.crr import crr_advantage, crr_policy_loss, crr_weights, td_target
-from parallel_skills.hcmpo import (critic_target, e_step_weights, m_step_loss, masked_mean, positive,
-                                   temperature_dual_loss)
+from parallel_skills.hcmpo import (critic_target, e_step_weights, entropy_floor_loss, m_step_loss, masked_mean,
+                                   positive, temperature_dual_loss)
 from parallel_skills.mpo import gaussian_mpo_loss
 from parallel_skills.networks import (GaussianPolicy, QCritic, QEnsemble, SchedulerCritic, SchedulerPolicy,
                                       categorical_entropy, gaussian_log_prob, pair_values, read_pairs,
@@ -110,15 +111,28 @@ def learner_step(state, grads, config, update_duals: bool, update_critic: bool =
 # order: the leaves flatten in the order of the dicts they replace, and a checkpoint names them alike.
 @flax.struct.dataclass
 class SchedulerDuals:
-    """The scheduler's duals: the E-step temperature η and the M-step KL multiplier α (Eq. 4)."""
+    """The scheduler's duals: the E-step temperature η and the M-step KL multiplier α (Eq. 4); with
+    ``SchedulerConfig.skill_entropy_floor`` > 0 also the floor's multiplier β (None otherwise: the
+    state, and a checkpoint of it, has the leaves it had before the floor existed)."""
 
     log_alpha: jax.Array
     log_temperature: jax.Array
+    log_entropy_weight: Optional[jax.Array] = None
 
     @classmethod
     def initial(cls, config: SchedulerConfig) -> "SchedulerDuals":
+        beta = (jnp.asarray(config.init_log_entropy_weight, jnp.float32) if config.skill_entropy_floor > 0
+                else None)
         return cls(log_alpha=jnp.asarray(config.init_log_alpha, jnp.float32),
-                   log_temperature=jnp.asarray(config.init_log_temperature, jnp.float32))
+                   log_temperature=jnp.asarray(config.init_log_temperature, jnp.float32),
+                   log_entropy_weight=beta)
+
+
+def skill_entropy_floor_nats(num_skills_total: int, config: SchedulerConfig) -> float:
+    """H_min of ``SchedulerConfig.skill_entropy_floor``: the fraction of ln(choosable skills) (the new
+    skill counts unless ``new_skill_choice`` is False)."""
+    choosable = num_skills_total - (0 if config.new_skill_choice else 1)
+    return float(config.skill_entropy_floor) * math.log(max(choosable, 1))
 
 
 @flax.struct.dataclass
@@ -226,6 +240,7 @@ class SchedulerAux(NamedTuple):
     policy_loss: jax.Array
     logits_i: jax.Array
     logits_k: jax.Array
+    entropy_weight: jax.Array  # β of the entropy floor (0 without one)
 
 
 def _skill_lengths(config: SchedulerConfig) -> jax.Array:
@@ -318,9 +333,14 @@ def scheduler_loss(params, steps, batch: Transition, labels: SchedulerLabels, ta
     li, lk = policy.apply(policy_params, batch.obs)
     log_probs = joint_log_probs(li, lk)
     loss_m, kl = m_step_loss(log_probs, weights, targets.log_prior, alpha, config.epsilon_kl, dmask)
+    entropy_weight = jnp.zeros(())
+    if config.skill_entropy_floor > 0:  # beyond the paper: a floor on H(π(i|s)) (hcmpo.entropy_floor_loss)
+        entropy_weight = positive(dual_params.log_entropy_weight)
+        loss_m = loss_m + entropy_floor_loss(categorical_entropy(li), entropy_weight,
+                                             skill_entropy_floor_nats(li.shape[-1], config), dmask)
     policy_loss = (loss_m + loss_temperature) * (steps >= config.policy_warmup_updates)
     aux = SchedulerAux(critic_loss=critic_loss, q=q, temperature=temperature, alpha=alpha, kl=kl,
-                       policy_loss=policy_loss, logits_i=li, logits_k=lk)
+                       policy_loss=policy_loss, logits_i=li, logits_k=lk, entropy_weight=entropy_weight)
     return critic_loss + policy_loss, aux
 
 
@@ -340,6 +360,7 @@ def scheduler_stats(aux: SchedulerAux, labels: SchedulerLabels) -> Dict[str, jax
         policy_entropy_i=masked_mean(categorical_entropy(aux.logits_i)[:, None], weight),
         policy_entropy_k=masked_mean(categorical_entropy(aux.logits_k)[:, None], weight),
         decision_fraction=jnp.sum(dmask) / jnp.maximum(jnp.sum(weight), 1.0),
+        entropy_weight=aux.entropy_weight,
     )
 
 

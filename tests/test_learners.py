@@ -274,3 +274,30 @@ def test_scheduler_without_the_new_skill_choice_never_chooses_it():
     li, _ = apply(new_state.policy_params, base.obs)
     np.testing.assert_allclose(jax.nn.softmax(li)[:, :-1].sum(-1), 1.0, rtol=1e-6)  # the others share it all
     assert not np.allclose(li[:, 0], 0.0)  # and the policy over them did learn
+
+
+def test_skill_entropy_floor_keeps_the_skill_choice_from_collapsing():
+    """Rewards for skill 2 only: without a floor π(i|s) sharpens; with skill_entropy_floor 0.9 its
+    multiplier β grows and the entropy stays well above the unfloored run's. Without a floor the
+    duals have the paper's two leaves (checkpoints of earlier runs restore)."""
+    from parallel_skills.learners import skill_entropy_floor_nats
+
+    base = _scheduler_batch(jax.random.PRNGKey(3))
+    base = base.replace(reward=5.0 * (base.skill == 2).astype(jnp.float32), is_decision=jnp.ones(B, bool),
+                        c=jnp.asarray(K, jnp.int32)[base.k_idx])
+    assert len(jax.tree_util.tree_leaves(scheduler_learner_init(jax.random.PRNGKey(0), O, N1, SCFG).dual_params)) == 2
+    entropies = {}
+    for floor in (0.0, 0.9):
+        cfg = dataclasses.replace(SCFG, skill_entropy_floor=floor, epsilon=1.0, epsilon_kl=0.1, dual_learning_rate=0.1)
+        state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, cfg)
+        new_state, metrics = _scan_updates(scheduler_learner_update, cfg, 150)(state, base, jax.random.PRNGKey(4))
+        assert _finite(metrics) and _finite(new_state)
+        entropies[floor] = float(metrics["policy_entropy_i"][-1])
+        if floor:
+            assert len(jax.tree_util.tree_leaves(new_state.dual_params)) == 3
+            assert float(metrics["entropy_weight"][-1]) > float(metrics["entropy_weight"][0])
+        else:
+            np.testing.assert_array_equal(metrics["entropy_weight"], 0.0)
+    h_min = skill_entropy_floor_nats(N1, dataclasses.replace(SCFG, skill_entropy_floor=0.9))
+    np.testing.assert_allclose(h_min, 0.9 * np.log(3), rtol=1e-6)
+    assert entropies[0.0] < 0.5 * np.log(3) < entropies[0.9], entropies
