@@ -174,4 +174,3 @@ def entropy_floor_loss(entropy: jnp.ndarray, weight: jnp.ndarray, floor: float,
     mean_h = masked_mean(entropy, mask)
     has_rows = (jnp.sum(mask) > 0).astype(entropy.dtype)
     return has_rows * (-jax.lax.stop_gradient(weight) * mean_h + weight * jax.lax.stop_gradient(mean_h - floor))
-

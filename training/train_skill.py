@@ -311,7 +311,7 @@ def main(argv=None):
         if args.physics not in tasks.PHYSICS:
             raise UsageError(f"unknown physics {args.physics!r}; valid: {', '.join(tasks.PHYSICS)}")
         tasks.check_start_states(args.skill, args.physics, args.start_states)  # ValueError: one line
-        prefix = parse_prefix(args.bc_prefix)
+        args.prefix_steps = prefix = parse_prefix(args.bc_prefix)  # ((scripted controller name, K), ...)
         if not args.bc_prefix_fraction <= 1.0:
             raise UsageError(f"--bc_prefix_fraction must be in [0, 1], got {args.bc_prefix_fraction}")
         from tasks.manipulation import layout
@@ -350,7 +350,7 @@ def _train_skill(args, argv, base):
     k_data, k_bc, k_sel = jax.random.split(key, 3)
     print(f"skill={args.skill} physics={args.physics} seed={args.seed}: cloning the scripted controller "
           f"({args.bc_envs} envs x {args.bc_steps} steps, noise {args.bc_noise}, {args.bc_updates} updates)", flush=True)
-    prefix = tuple((scripted.get(n), k) for n, k in parse_prefix(args.bc_prefix))
+    prefix = tuple((scripted.get(n), k) for n, k in args.prefix_steps)
     n_pre = int(round(args.bc_prefix_fraction * args.bc_envs)) if prefix else 0
     parts = []
     if args.bc_envs - n_pre:
