@@ -34,7 +34,8 @@ POSITIVE_FIELDS = frozenset({
     "target_actor_period", "target_critic_period", "num_action_samples", "mpo_num_samples",
     "num_critics", "n_step", "num_timesteps", "episode_length", "checkpoint_every"})
 # Float fields that must lie in [0, 1] (every other float field must be finite), in any config class.
-UNIT_INTERVAL_FIELDS = frozenset({"target_tau", "mpo_alpha", "dagger_alpha", "skill_entropy_floor"})
+UNIT_INTERVAL_FIELDS = frozenset({"target_tau", "mpo_alpha", "dagger_alpha", "skill_entropy_floor",
+                                  "length_entropy_floor"})
 
 
 class FieldError(ValueError):
@@ -172,6 +173,10 @@ class SchedulerConfig:
     # update and its choices collapse before any sequence is found. 0: no floor (the paper).
     skill_entropy_floor: float = 0.0
     init_log_entropy_weight: float = -5.0  # its multiplier starts at softplus(−5) ≈ 0.007
+    # The same floor on the length choice (beyond the paper): the mean entropy of π(k|s) at decision
+    # states kept ≥ this fraction of ln(len(skill_lengths)), by its own multiplier (which starts at
+    # init_log_entropy_weight). 0: no floor (the paper).
+    length_entropy_floor: float = 0.0
 
     def __post_init__(self):
         check_fields(self)

@@ -112,20 +112,24 @@ def learner_step(state, grads, config, update_duals: bool, update_critic: bool =
 @flax.struct.dataclass
 class SchedulerDuals:
     """The scheduler's duals: the E-step temperature η and the M-step KL multiplier α (Eq. 4); with
-    ``SchedulerConfig.skill_entropy_floor`` > 0 also the floor's multiplier β (None otherwise: the
-    state, and a checkpoint of it, has the leaves it had before the floor existed)."""
+    ``SchedulerConfig.skill_entropy_floor`` > 0 also the floor's multiplier β, with
+    ``length_entropy_floor`` > 0 the length floor's (None otherwise: the state, and a checkpoint of
+    it, has the leaves it had before the floors existed)."""
 
     log_alpha: jax.Array
     log_temperature: jax.Array
     log_entropy_weight: Optional[jax.Array] = None
+    log_length_entropy_weight: Optional[jax.Array] = None
 
     @classmethod
     def initial(cls, config: SchedulerConfig) -> "SchedulerDuals":
-        beta = (jnp.asarray(config.init_log_entropy_weight, jnp.float32) if config.skill_entropy_floor > 0
-                else None)
+        def beta(floor):
+            return jnp.asarray(config.init_log_entropy_weight, jnp.float32) if floor > 0 else None
+
         return cls(log_alpha=jnp.asarray(config.init_log_alpha, jnp.float32),
                    log_temperature=jnp.asarray(config.init_log_temperature, jnp.float32),
-                   log_entropy_weight=beta)
+                   log_entropy_weight=beta(config.skill_entropy_floor),
+                   log_length_entropy_weight=beta(config.length_entropy_floor))
 
 
 def skill_entropy_floor_nats(num_skills_total: int, config: SchedulerConfig) -> float:
@@ -133,6 +137,11 @@ def skill_entropy_floor_nats(num_skills_total: int, config: SchedulerConfig) -> 
     skill counts unless ``new_skill_choice`` is False)."""
     choosable = num_skills_total - (0 if config.new_skill_choice else 1)
     return float(config.skill_entropy_floor) * math.log(max(choosable, 1))
+
+
+def length_entropy_floor_nats(config: SchedulerConfig) -> float:
+    """H_min of ``SchedulerConfig.length_entropy_floor``: the fraction of ln(len(skill_lengths))."""
+    return float(config.length_entropy_floor) * math.log(config.num_lengths)
 
 
 @flax.struct.dataclass
@@ -241,6 +250,7 @@ class SchedulerAux(NamedTuple):
     logits_i: jax.Array
     logits_k: jax.Array
     entropy_weight: jax.Array  # β of the entropy floor (0 without one)
+    length_entropy_weight: Optional[jax.Array] = None  # the length floor's β (None without one)
 
 
 def _skill_lengths(config: SchedulerConfig) -> jax.Array:
@@ -338,9 +348,15 @@ def scheduler_loss(params, steps, batch: Transition, labels: SchedulerLabels, ta
         entropy_weight = positive(dual_params.log_entropy_weight)
         loss_m = loss_m + entropy_floor_loss(categorical_entropy(li), entropy_weight,
                                              skill_entropy_floor_nats(li.shape[-1], config), dmask)
+    length_entropy_weight = None
+    if config.length_entropy_floor > 0:  # the same floor on H(π(k|s))
+        length_entropy_weight = positive(dual_params.log_length_entropy_weight)
+        loss_m = loss_m + entropy_floor_loss(categorical_entropy(lk), length_entropy_weight,
+                                             length_entropy_floor_nats(config), dmask)
     policy_loss = (loss_m + loss_temperature) * (steps >= config.policy_warmup_updates)
     aux = SchedulerAux(critic_loss=critic_loss, q=q, temperature=temperature, alpha=alpha, kl=kl,
-                       policy_loss=policy_loss, logits_i=li, logits_k=lk, entropy_weight=entropy_weight)
+                       policy_loss=policy_loss, logits_i=li, logits_k=lk, entropy_weight=entropy_weight,
+                       length_entropy_weight=length_entropy_weight)
     return critic_loss + policy_loss, aux
 
 
@@ -361,6 +377,8 @@ def scheduler_stats(aux: SchedulerAux, labels: SchedulerLabels) -> Dict[str, jax
         policy_entropy_k=masked_mean(categorical_entropy(aux.logits_k)[:, None], weight),
         decision_fraction=jnp.sum(dmask) / jnp.maximum(jnp.sum(weight), 1.0),
         entropy_weight=aux.entropy_weight,
+        # Only with SchedulerConfig.length_entropy_floor > 0 (the default runs' columns are unchanged).
+        **({} if aux.length_entropy_weight is None else dict(length_entropy_weight=aux.length_entropy_weight)),
     )
 
 

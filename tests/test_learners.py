@@ -301,3 +301,30 @@ def test_skill_entropy_floor_keeps_the_skill_choice_from_collapsing():
     h_min = skill_entropy_floor_nats(N1, dataclasses.replace(SCFG, skill_entropy_floor=0.9))
     np.testing.assert_allclose(h_min, 0.9 * np.log(3), rtol=1e-6)
     assert entropies[0.0] < 0.5 * np.log(3) < entropies[0.9], entropies
+
+
+def test_length_entropy_floor_keeps_the_length_choice_from_collapsing():
+    """Rewards for the short length only: without a floor π(k|s) sharpens; with length_entropy_floor
+    0.9 its own multiplier grows and H(π(k|s)) stays above half its maximum. The skill floor's
+    multiplier is not created by it, and the stat exists only with the floor."""
+    from parallel_skills.learners import length_entropy_floor_nats
+
+    base = _scheduler_batch(jax.random.PRNGKey(3))
+    base = base.replace(reward=5.0 * (base.k_idx == 0).astype(jnp.float32), is_decision=jnp.ones(B, bool),
+                        c=jnp.asarray(K, jnp.int32)[base.k_idx])
+    entropies = {}
+    for floor in (0.0, 0.9):
+        cfg = dataclasses.replace(SCFG, length_entropy_floor=floor, epsilon=1.0, epsilon_kl=0.1, dual_learning_rate=0.1)
+        state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, cfg)
+        assert state.dual_params.log_entropy_weight is None
+        new_state, metrics = _scan_updates(scheduler_learner_update, cfg, 150)(state, base, jax.random.PRNGKey(4))
+        assert _finite(metrics) and _finite(new_state)
+        entropies[floor] = float(metrics["policy_entropy_k"][-1])
+        if floor:
+            assert len(jax.tree_util.tree_leaves(new_state.dual_params)) == 3
+            assert float(metrics["length_entropy_weight"][-1]) > float(metrics["length_entropy_weight"][0])
+        else:
+            assert "length_entropy_weight" not in metrics
+    np.testing.assert_allclose(length_entropy_floor_nats(dataclasses.replace(SCFG, length_entropy_floor=0.9)),
+                               0.9 * np.log(len(K)), rtol=1e-6)
+    assert entropies[0.0] < 0.5 * np.log(len(K)) < entropies[0.9], entropies
