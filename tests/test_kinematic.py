@@ -95,10 +95,29 @@ def test_mixed_start_states_stack_or_place_a_pair_without_overlap():
     assert not np.any(stacked & adjacent)
     on_floor = np.all(np.isclose(p[..., 2], L.CUBE_HALF), axis=-1)
     assert np.all(on_floor == ~stacked)
-    with pytest.raises(ValueError, match="start_states must be one of table, mixed, got 'tower'"):
+    with pytest.raises(ValueError, match="start_states must be one of table, mixed, or TOP_on_BOTTOM .*got 'tower'"):
         tasks.make("stack", start_states="tower")
     with pytest.raises(ValueError, match="kinematic physics only"):
         tasks.make("stack", physics="mujoco", start_states="mixed")
+
+
+def test_pair_start_states_put_that_cube_on_the_other_in_half_the_resets():
+    """start_states="yellow_on_blue": about half the resets with yellow resting on blue (the stack
+    test holds for that pair, no other pair stacked, nothing overlapping), the rest on the floor."""
+    from tasks.manipulation import rewards as R
+
+    keys = jax.random.split(jax.random.PRNGKey(3), 512)
+    s = jax.vmap(tasks.make("stack", start_states="yellow_on_blue").reset)(keys).pipeline_state
+    p = np.asarray(s.cube_pos)
+    y, b = L.CUBE_INDEX["yellow"], L.CUBE_INDEX["blue"]
+    on = np.asarray(R.stack_sparse(p[:, y], p[:, b], np.zeros(len(p)))) > 0
+    assert 0.42 < on.mean() < 0.58, on.mean()
+    on_floor = np.all(np.isclose(p[..., 2], L.CUBE_HALF), axis=-1)
+    assert np.all(on_floor == ~on)
+    assert not np.any(jax.vmap(K.cubes_interpenetrate)(s))
+    tasks.check_start_states("stack", "kinematic", "green_on_blue")
+    with pytest.raises(ValueError, match="got 'green_on_green'"):
+        tasks.check_start_states("stack", "kinematic", "green_on_green")
 
 
 # Each scripted controller on its own task over 64 random initial states (issue #2 thresholds).

@@ -312,6 +312,16 @@ START_STATES = {
              "centred within 5 mm); a third with one cube beside another, faces touching within "
              "1-8 mm (the states a chain's later stages bring its skills to)",
 }
+# A chain's precondition: "TOP_on_BOTTOM" (each ordered pair of cubes), e.g. yellow_on_blue, the
+# state stack_green_on_yellow starts from in triple stack.
+PAIR_START_STATES = {f"{t}_on_{b}": (L.CUBE_INDEX[t], L.CUBE_INDEX[b])
+                     for t in L.CUBE_NAMES for b in L.CUBE_NAMES if t != b}
+for _name in PAIR_START_STATES:
+    _t, _b = _name.split("_on_")
+    START_STATES[_name] = (f"half as 'table'; half with {_t} resting on {_b} (centred within 5 mm): "
+                           f"a chain's precondition for the skill that comes after")
+START_STATES_ALLOWED = "table, mixed, or TOP_on_BOTTOM of two of green, yellow, blue (e.g. yellow_on_blue)"
+PAIR_TRIES = 8  # table resets tried for a pair's placement
 ARRANGE_TABLE, ARRANGE_STACKED, ARRANGE_ADJACENT = 0, 1, 2
 ADJACENT_GAP = (0.001, 0.008)  # m between the touching faces of an adjacent pair
 STACKED_OFFSET = 0.005  # m, the top cube's centre within this of the bottom's (each axis)
@@ -350,12 +360,15 @@ def pair_candidates(s: KinematicState, rng: jax.Array, arrangement):
     return jax.vmap(place)(top, pos, yaw)
 
 
-def arrange_pair(s: KinematicState, rng: jax.Array, arrangement) -> KinematicState:
+def arrange_pair(s: KinematicState, rng: jax.Array, arrangement, pair=None) -> KinematicState:
     """``s`` (a table reset) with one cube moved onto (``ARRANGE_STACKED``) or beside
     (``ARRANGE_ADJACENT``) another: a placement drawn uniformly from the valid ones of
-    ``pair_candidates``; ``ARRANGE_TABLE``, or no valid placement: ``s`` unchanged."""
+    ``pair_candidates`` (of the ordered pair ``pair`` = (top, bottom) only, if given);
+    ``ARRANGE_TABLE``, or no valid placement: ``s`` unchanged."""
     k_cand, k_pick = jax.random.split(rng)
     cube_pos, cube_yaw, valid = pair_candidates(s, k_cand, arrangement)
+    if pair is not None:
+        valid = valid & (jnp.repeat(PAIRS[:, 0], 4) == pair[0]) & (jnp.repeat(PAIRS[:, 1], 4) == pair[1])
     pick = jnp.argmax(jnp.where(valid, jax.random.uniform(k_pick, valid.shape), -1.0))
     ok = (arrangement != ARRANGE_TABLE) & valid[pick]
     return s.replace(cube_pos=jnp.where(ok, cube_pos[pick], s.cube_pos),
@@ -368,6 +381,14 @@ def sample_start_state(rng: jax.Array, start_states: str = "table") -> Kinematic
     if start_states == "table":
         return sample_initial_state(rng)
     k_table, k_mode, k_pair = jax.random.split(rng, 3)
+    if start_states in PAIR_START_STATES:  # the pair fits only some table resets: try a few
+        tries = jax.vmap(lambda k: arrange_pair(sample_initial_state(k), k_pair, ARRANGE_STACKED,
+                                                PAIR_START_STATES[start_states]))(jax.random.split(k_table, PAIR_TRIES))
+        top = PAIR_START_STATES[start_states][0]
+        placed = tries.cube_pos[:, top, 2] > L.CUBE_HALF + 0.5 * L.CUBE_SIZE
+        stacked = jax.tree_util.tree_map(lambda x: x[jnp.argmax(placed)], tries)
+        use = jax.random.bernoulli(k_mode)  # half the resets
+        return jax.tree_util.tree_map(lambda a, b: jnp.where(use, a, b), stacked, sample_initial_state(k_table))
     arrangement = jax.random.randint(k_mode, (), 0, 3)
     return arrange_pair(sample_initial_state(k_table), k_pair, arrangement)
 
@@ -384,7 +405,7 @@ class KinematicBlocks(ManipulationEnv):
         if int(episode_length) < 1:
             raise ValueError(f"episode_length must be a positive integer, got {episode_length}")
         if start_states not in START_STATES:
-            raise ValueError(f"start_states must be one of {', '.join(START_STATES)}, got {start_states!r}")
+            raise ValueError(f"start_states must be one of {START_STATES_ALLOWED}, got {start_states!r}")
         self.task = task_defs.get(task)
         self.task_name = task
         self.episode_length = int(episode_length)
