@@ -194,6 +194,34 @@ def test_evaluate_scheduler_runs_scripted_skills(tmp_path, capsys):
     assert float(out_sched[-1].split("return=")[1]) > 0.0
 
 
+def test_evaluate_scheduler_with_the_new_skills_sampled_actions(tmp_path, capsys):
+    """``:scheduler --actions sampled`` samples the new skill's actions (its choices stay greedy): a
+    scheduler that always picks the new skill then acts as the new skill's Gaussian, not its mean;
+    a scripted policy still cannot be sampled (one line)."""
+    params = _params(L.OBS_SIZE, L.ACTION_SIZE, len(SKILLS))
+    sched = jax.tree.map(lambda x: x, params.scheduler)
+    head_i = sched["params"]["head_i"]
+    sched["params"]["head_i"] = {"kernel": jnp.zeros_like(head_i["kernel"]),
+                                 "bias": jnp.asarray([0.0, 0.0, 50.0])}  # the new skill
+    params = params.replace(scheduler=sched)
+    path = write_export(str(tmp_path), params, env=_env(), config=CONFIG, task="reach_green", physics="kinematic",
+                        metadata={"skills": SKILLS, "seed": 0, "env_steps": 0})
+    common = ["--task", "reach_green", "--physics", "kinematic", "--episodes", "3", "--episode_length", "20",
+              "--policy", path + ":scheduler"]
+    out = {}
+    for actions in ("mean", "sampled"):
+        evaluate.main(common + ["--actions", actions])
+        out[actions] = capsys.readouterr().out.strip().splitlines()
+        assert "_new_skill=1.000" in out[actions][-2], out[actions]  # always the new skill
+    assert out["sampled"][0].endswith("actions=sampled") and not out["mean"][0].endswith("actions=sampled")
+    assert out["sampled"][-1] != out["mean"][-1]  # the Gaussian's noise changes the returns
+    evaluate.main(common + ["--actions", "sampled"])
+    assert capsys.readouterr().out.strip().splitlines()[-1] == out["sampled"][-1]  # seeded
+    with pytest.raises(SystemExit) as e:
+        evaluate.main(common[:-2] + ["--policy", "scripted:reach_green", "--actions", "sampled"])
+    assert e.value.code == 2 and "--actions sampled needs a Gaussian-MLP policy" in capsys.readouterr().err
+
+
 def test_evaluate_scheduler_runs_library_and_skill_dir_skills(tmp_path, capsys):
     """An export of a run with neural skills (``--skill_source library`` / ``--skill_dir``) runs those
     files under ``:scheduler`` (NumPy, on the JAX-free twin here), not the scripted controllers of the
@@ -332,8 +360,8 @@ def test_evaluate_a_run_directory_and_a_library_skill(exported, tmp_path, capsys
 @pytest.mark.parametrize("physics", ["mujoco", "kinematic"])
 def test_evaluate_sampled_actions(exported, capsys, physics):
     """``--actions sampled``: the new skill acting with actions drawn from its Gaussian (as collected),
-    the same numbers for the same seed, others than its mean action's; one-line errors for policies
-    that are not a Gaussian MLP and for an unknown choice."""
+    the same numbers for the same seed, others than its mean action's; one-line errors for a scripted
+    policy and for an unknown choice (``:scheduler``: its new skill's, the test below)."""
     path, _ = exported  # reach_green: a shaped reward, so returns tell the actions apart within 6 steps
     base = ["--task", "reach_green", "--physics", physics, "--episodes", "3", "--episode_length", "6", "--policy", path]
 
@@ -347,8 +375,6 @@ def test_evaluate_sampled_actions(exported, capsys, physics):
     assert sampled != mean and sampled.startswith("success=")
     assert last_line(["--actions", "sampled", "--seed", "1"]) != sampled
     assert "--actions must be one of mean, sampled, got 'noisy'" in _bad(base + ["--actions", "noisy"], capsys)
-    err = _bad(base[:-1] + [path + ":scheduler", "--actions", "sampled"], capsys)
-    assert "--actions sampled needs a Gaussian-MLP policy" in err
     assert "needs a Gaussian-MLP policy" in _bad(base[:-1] + ["scripted:lift_green", "--actions", "sampled"], capsys)
 
 

@@ -28,7 +28,9 @@ printed is ``success=<fraction> return=<mean>``.
 the deterministic read-out that ``eval/new_skill_success`` reports) or ``sampled``: clip(mean + std·ε,
 −1, 1) with the policy's own std and std floor, as the trainer collects with it and as
 ``eval/new_skill_sampled_success`` reports (docs/scheduler.md §5: the learnt new skill *is* the
-Gaussian; its mean can succeed much less often).
+Gaussian; its mean can succeed much less often). With ``:scheduler`` it applies to the new skill
+only: the choices stay greedy and the frozen skills noise-free, so the difference to ``mean`` is
+what the scheduler's runs of the new skill owe to its Gaussian.
 """
 
 from __future__ import annotations
@@ -237,15 +239,20 @@ def frozen_skills(export, seed: int):
     return actions
 
 
-def scheduler_policy(export, seed: int):
+def scheduler_policy(export, seed: int, new_skill_actions: str = "mean"):
     """The export's scheduler running its skills (greedy choices, counters): a batched NumPy
-    ``act(obs) -> actions`` with a ``usage`` attribute (steps per skill)."""
+    ``act(obs) -> actions`` with a ``usage`` attribute (steps per skill). ``new_skill_actions``
+    (``ACTIONS``): the new skill's mean action, or actions sampled from its Gaussian."""
     from parallel_skills.numpy_policy import ScheduledPolicy
 
     frozen = frozen_skills(export, seed)
+    rng = np.random.default_rng([seed, 1])
+
+    def new_skill(obs):
+        return export.new_skill.sample(obs, rng) if new_skill_actions == "sampled" else export.new_skill(obs)
 
     def every_skill(obs):
-        new = export.new_skill(obs)[None]
+        new = new_skill(obs)[None]
         return new if frozen is None else np.concatenate([frozen(obs), new], axis=0)
 
     return ScheduledPolicy(export.scheduler, every_skill, export.skill_lengths)
@@ -281,7 +288,8 @@ def main(argv=None):
     p.add_argument("--seed", type=nonnegative_int, default=0)
     p.add_argument("--actions", default="mean",
                    help=f"one of {', '.join(ACTIONS)}: a Gaussian-MLP policy's mean action or actions sampled from "
-                        "its Gaussian (as collected)")
+                        "its Gaussian (as collected); with :scheduler, the new skill's (choices stay greedy, the "
+                        "frozen skills noise-free)")
     p.add_argument("--usage_plot", default=None,
                    help="with a ':scheduler' policy: write this image of the skill it runs at each step of the "
                         "episode (share of episodes per skill over episode time)")
@@ -334,9 +342,9 @@ def evaluate_policy(task: str, physics: str, policy: str, episodes: int = 64, se
     args = argparse.Namespace(task=task, physics=physics, policy=policy, episodes=int(episodes), seed=int(seed),
                               episode_length=episode_length, actions=actions, start_states=start_states)
     kind, target, suffix = parse_policy(policy, physics)
-    if actions == "sampled" and (kind == "scripted" or suffix == "scheduler"):
-        raise UsageError(f"--actions sampled needs a Gaussian-MLP policy (a skill .npz or an export's new skill), "
-                         f"not {policy!r}")
+    if actions == "sampled" and kind == "scripted":
+        raise UsageError(f"--actions sampled needs a Gaussian-MLP policy (a skill .npz, an export's new skill, or "
+                         f"its scheduler's new skill), not {policy!r}")
     if kind == "scripted":
         scripted_controller(target)  # exists (UsageError naming the valid ones)
     export = None
@@ -376,8 +384,8 @@ def _evaluate_on_twin(args, kind, path, export, suffix):
         policy = NumpyGaussianPolicy.load(path, obs_size=L.OBS_SIZE, action_size=L.ACTION_SIZE)
     else:
         export.check_task_sizes(L.OBS_SIZE, L.ACTION_SIZE)
-        policy = export.new_skill if suffix != "scheduler" else scheduler_policy(export, args.seed)
-    if args.actions == "sampled":
+        policy = export.new_skill if suffix != "scheduler" else scheduler_policy(export, args.seed, args.actions)
+    if args.actions == "sampled" and suffix != "scheduler":
         gaussian, rng = policy, np.random.default_rng([args.seed, 1])
         policy = lambda obs: gaussian.sample(obs, rng)  # noqa: E731
     result = run_episodes(TwinBatch(args.task, args.episodes, args.seed), policy, length)
@@ -404,7 +412,7 @@ def _evaluate_on_jax_env(args, kind, target, export, suffix):
     if export is not None:
         export.check_task_sizes(env.observation_size, env.action_size)
         if suffix == "scheduler":
-            policy = scheduler_policy(export, args.seed)
+            policy = scheduler_policy(export, args.seed, args.actions)
             envs = JaxEnvBatch(env, args.episodes, args.seed)
             result = run_episodes(envs, policy, int(env.episode_length))
             return (_with_timeline(result, export, policy, getattr(env, "dt", None), envs.start_kind,
