@@ -98,7 +98,7 @@ def test_start_states_is_recorded_and_rebuilds_the_runs_env(tmp_path):
 
 
 @pytest.mark.parametrize("argv,needle", [
-    (["--start_states", "tower"], "start_states must be one of table, mixed, got 'tower'"),
+    (["--start_states", "tower"], "start_states must be one of table, mixed, or TOP_on_BOTTOM"),
     (["--physics", "mujoco", "--start_states", "mixed"], "kinematic physics only"),
     (["--scheduler.n_step", "0"], "argument --scheduler.n_step: expected a positive integer, got '0'"),
     (["--new_skill.crr_mode", "bogus"], "argument --new_skill.crr_mode: expected 'exp' or 'indicator', got 'bogus'"),

@@ -389,6 +389,7 @@ def test_evaluate_start_states(exported, capsys):
         return capsys.readouterr().out.strip().splitlines()[-1]
 
     assert last_line(["--start_states", "mixed"]) != last_line([]) == last_line(["--start_states", "table"])
-    assert "start_states must be one of table, mixed, got 'tower'" in _bad(base + ["--start_states", "tower"], capsys)
+    err = _bad(base + ["--start_states", "tower"], capsys)
+    assert "start_states must be one of table, mixed, or TOP_on_BOTTOM" in err and "got 'tower'" in err
     assert "MuJoCo twin resets with 'table' only" in _bad(base + ["--physics", "mujoco", "--start_states", "mixed"],
                                                           capsys)
