@@ -276,6 +276,16 @@ def test_scheduler_without_the_new_skill_choice_never_chooses_it():
     assert not np.allclose(li[:, 0], 0.0)  # and the policy over them did learn
 
 
+def _floor_run(base, **floor):
+    """150 scheduler updates on ``base`` with an entropy floor setting (e.g. skill_entropy_floor=0.9)
+    and fast duals: (the initial state, the final state, the stacked metrics)."""
+    cfg = dataclasses.replace(SCFG, epsilon=1.0, epsilon_kl=0.1, dual_learning_rate=0.1, **floor)
+    state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, cfg)
+    new_state, metrics = _scan_updates(scheduler_learner_update, cfg, 150)(state, base, jax.random.PRNGKey(4))
+    assert _finite(metrics) and _finite(new_state)
+    return state, new_state, metrics
+
+
 def test_skill_entropy_floor_keeps_the_skill_choice_from_collapsing():
     """Rewards for skill 2 only: without a floor π(i|s) sharpens; with skill_entropy_floor 0.9 its
     multiplier β grows and the entropy stays well above the unfloored run's. Without a floor the
@@ -288,10 +298,7 @@ def test_skill_entropy_floor_keeps_the_skill_choice_from_collapsing():
     assert len(jax.tree_util.tree_leaves(scheduler_learner_init(jax.random.PRNGKey(0), O, N1, SCFG).dual_params)) == 2
     entropies = {}
     for floor in (0.0, 0.9):
-        cfg = dataclasses.replace(SCFG, skill_entropy_floor=floor, epsilon=1.0, epsilon_kl=0.1, dual_learning_rate=0.1)
-        state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, cfg)
-        new_state, metrics = _scan_updates(scheduler_learner_update, cfg, 150)(state, base, jax.random.PRNGKey(4))
-        assert _finite(metrics) and _finite(new_state)
+        _, new_state, metrics = _floor_run(base, skill_entropy_floor=floor)
         entropies[floor] = float(metrics["policy_entropy_i"][-1])
         if floor:
             assert len(jax.tree_util.tree_leaves(new_state.dual_params)) == 3
@@ -314,11 +321,8 @@ def test_length_entropy_floor_keeps_the_length_choice_from_collapsing():
                         c=jnp.asarray(K, jnp.int32)[base.k_idx])
     entropies = {}
     for floor in (0.0, 0.9):
-        cfg = dataclasses.replace(SCFG, length_entropy_floor=floor, epsilon=1.0, epsilon_kl=0.1, dual_learning_rate=0.1)
-        state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, cfg)
+        state, new_state, metrics = _floor_run(base, length_entropy_floor=floor)
         assert state.dual_params.log_entropy_weight is None
-        new_state, metrics = _scan_updates(scheduler_learner_update, cfg, 150)(state, base, jax.random.PRNGKey(4))
-        assert _finite(metrics) and _finite(new_state)
         entropies[floor] = float(metrics["policy_entropy_k"][-1])
         if floor:
             assert len(jax.tree_util.tree_leaves(new_state.dual_params)) == 3
