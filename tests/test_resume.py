@@ -361,7 +361,8 @@ def test_readouts_of_a_checkpoint(uninterrupted, tmp_path, capsys):
 def test_action_trace_of_a_checkpoint(uninterrupted, tmp_path, capsys):
     """training.experiments.action_trace: the checkpoint's new skill with its mean action, one action
     dimension's mean and std and the named observation entries per step; its first step is the
-    policy's mean at the reset observation, computed here apart; bad input is one line."""
+    policy's mean (and its critic's values) at the reset observation, computed here apart; bad input is
+    one line."""
     import jax
 
     from parallel_skills import learners
@@ -380,6 +381,13 @@ def test_action_trace_of_a_checkpoint(uninterrupted, tmp_path, capsys):
         state.new_skill.policy_params, obs_norm.normalize(state.normalizer, obs))
     np.testing.assert_allclose(out["mean"][0], np.asarray(mean)[:, 4], rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(out["std"][0], np.asarray(std)[:, 4], rtol=1e-5, atol=1e-6)
+    _, critic = learners.new_skill_networks(int(env.action_size), trainer.config.new_skill)
+    q = lambda a: np.min(np.asarray(learners.critic_values(  # noqa: E731
+        critic, state.new_skill.critic_params, obs_norm.normalize(state.normalizer, obs), a)), axis=-1)
+    np.testing.assert_allclose(out["q_mean"][0], q(mean), rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(out["q_up"][0], q(mean.at[:, 4].set(1.0)), rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(out["q_down"][0], q(mean.at[:, 4].set(-1.0)), rtol=1e-4, atol=1e-5)
+    assert out["v"].shape == (length, 2) and np.all(np.isfinite(out["v"]))
     np.testing.assert_allclose(out["finger_angle"][0, :, 0], np.asarray(obs)[:, L.FINGER])
     np.testing.assert_allclose(out["green_pose"][0], np.asarray(obs)[:, L.cube_pos("green")])
     saved = json.load(open(tmp_path / "t.json"))

@@ -4,6 +4,12 @@ deterministic read-out gets stuck; docs/scheduler.md §8).
 
     python -m training.experiments.action_trace RUN_DIR --dim 4 --obs finger_angle,grasp --episodes 4 --json OUT.json
 
+With each step's action the trace holds the new skill's critic there (the minimum over its critics, as
+CRR's advantage takes it): ``q_mean`` at the mean action, ``q_up`` / ``q_down`` at the mean action with
+dimension ``--dim`` set to +1 / −1, and ``v`` the mean over 16 actions sampled from the Gaussian (CRR's
+baseline, ``crr.crr_advantage``). So ``q_up − v`` is the advantage CRR gives an action that opens
+the fingers there, and ``q_mean − v`` the mean action's.
+
 ``--dim``: the action index (manipulation: 0-2 pinch velocity, 3 wrist yaw, 4 fingers); ``--obs``:
 observation entries of the manipulation layout (``tasks.manipulation.layout.OBS_SLICES``; a
 pose is traced as its position). Episodes reset from ``PRNGKey(--seed)`` (``jax.random.split`` into one key per
@@ -19,27 +25,44 @@ from training.cli import Parser, UsageError, main_guard, positive_int
 
 
 def trace(env, trainer, state, dim: int, obs_index: dict, episodes: int, seed: int) -> dict:
-    """{"mean", "std": [T, E] of action ``dim``; obs name: [T, E, size]; "success": [E]} of
-    ``episodes`` mean-action episodes of the checkpoint's new skill. ``obs_index``: name -> slice."""
+    """{"mean", "std", "q_mean", "q_up", "q_down", "v": [T, E] (action ``dim``; the critic values of the
+    module docstring); obs name: [T, E, size]; "success": [E]} of ``episodes`` mean-action episodes of
+    the checkpoint's new skill. ``obs_index``: name -> slice."""
     import jax
     import numpy as np
 
-    from parallel_skills import learners
+    import jax.numpy as jnp
+
+    from parallel_skills import learners, networks
     from parallel_skills import normalization as obs_norm
+
+    _, critic = learners.new_skill_networks(int(env.action_size), trainer.config.new_skill)
+    critic_params = state.new_skill.critic_params
+
+    def q_min(obs, action):  # [E, O], [E, A] or [E, J, A] -> min over the critics
+        return jnp.min(learners.critic_values(critic, critic_params, obs, action), axis=-1)
 
     new_apply = learners.make_new_skill_apply(int(env.action_size), trainer.config.new_skill)
     params, norm = state.new_skill.policy_params, state.normalizer
     start = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(seed), episodes))
     idx = np.concatenate([np.arange(sl.start, sl.stop) for sl in obs_index.values()]).astype(np.int32)
 
-    def step(s, _):
-        mean, std = new_apply(params, obs_norm.normalize(norm, s.obs))
+    def step(carry, _):
+        s, key = carry
+        key, k_v = jax.random.split(key)
+        o = obs_norm.normalize(norm, s.obs)
+        mean, std = new_apply(params, o)
+        samples = networks.sample_action(jnp.broadcast_to(mean[:, None], (episodes, 16, mean.shape[-1])),
+                                         jnp.broadcast_to(std[:, None], (episodes, 16, mean.shape[-1])), k_v)
+        critic_out = (q_min(o, mean), q_min(o, mean.at[:, dim].set(1.0)), q_min(o, mean.at[:, dim].set(-1.0)),
+                      jnp.mean(q_min(learners.tile_obs(o, 16), samples), axis=1))
         nxt = jax.vmap(env.step)(s, mean)
-        return nxt, (mean[:, dim], std[:, dim], s.obs[:, idx], nxt.metrics["success"])
+        return (nxt, key), (mean[:, dim], std[:, dim], s.obs[:, idx], nxt.metrics["success"], critic_out)
 
-    _, (m, sd, obs, success) = jax.device_get(jax.jit(
-        lambda s: jax.lax.scan(step, s, None, length=int(env.episode_length)))(start))
-    out = {"mean": np.asarray(m), "std": np.asarray(sd), "success": np.asarray(success).max(axis=0)}
+    _, (m, sd, obs, success, (q_mean, q_up, q_down, v)) = jax.device_get(jax.jit(
+        lambda s: jax.lax.scan(step, (s, jax.random.PRNGKey(seed + 1)), None, length=int(env.episode_length)))(start))
+    out = {"mean": np.asarray(m), "std": np.asarray(sd), "success": np.asarray(success).max(axis=0),
+           "q_mean": np.asarray(q_mean), "q_up": np.asarray(q_up), "q_down": np.asarray(q_down), "v": np.asarray(v)}
     at = 0
     for name, sl in obs_index.items():
         out[name] = np.asarray(obs)[:, :, at:at + sl.stop - sl.start]
@@ -79,7 +102,9 @@ def main(argv=None):
             print(f"episode {e}: success {int(out['success'][e])}")
             for t in range(0, out["mean"].shape[0], args.every):
                 extra = " ".join(f"{n}=" + ",".join(f"{v:.3f}" for v in out[n][t, e]) for n in names)
-                print(f"  t={t:3d} mean={out['mean'][t, e]:+.2f} std={out['std'][t, e]:.2f} {extra}")
+                print(f"  t={t:3d} mean={out['mean'][t, e]:+.2f} std={out['std'][t, e]:.2f} "
+                      f"q_mean-v={out['q_mean'][t, e] - out['v'][t, e]:+.2f} q_up-v={out['q_up'][t, e] - out['v'][t, e]:+.2f} "
+                      f"v={out['v'][t, e]:.2f} {extra}")
         if args.json:
             with open(args.json, "w") as f:
                 json.dump({"env_steps": int(host["env_steps"]), "dim": args.dim, "seed": args.seed,
