@@ -393,8 +393,42 @@ def test_action_trace_of_a_checkpoint(uninterrupted, tmp_path, capsys):
     saved = json.load(open(tmp_path / "t.json"))
     assert saved["dim"] == 4 and len(saved["mean"]) == length
     capsys.readouterr()
-    for argv, words in (([run, "--dim", "5"], "action index in 0..4"), ([run, "--obs", "nose"], "unknown entry 'nose'")):
+    summary = action_trace.main([run, "--episodes", "2", "--every", "600", "--over", "green,yellow",
+                                 "--summary_json", str(tmp_path / "s.json")])["summary"]
+    assert summary == {k: v for k, v in json.load(open(tmp_path / "s.json")).items()
+                       if k not in ("run", "env_steps", "dim", "seed")}
+    assert summary["episodes"] == 2 and len(summary["per_episode"]) == 2
+    assert summary["steps_over"] == sum(e["steps_over"] for e in summary["per_episode"])
+    for e in summary["per_episode"]:  # the means are over the steps held over, None without any
+        assert all((v is None) == (e["steps_over"] == 0) for k, v in e.items() if k not in ("success", "steps_over"))
+    capsys.readouterr()
+    for argv, words in (([run, "--dim", "5"], "action index in 0..4"), ([run, "--obs", "nose"], "unknown entry 'nose'"),
+                        ([run, "--over", "green,green"], "two different cube names"),
+                        ([run, "--summary_json", "x.json"], "needs --over")):
         with pytest.raises(SystemExit) as e:
             action_trace.main(argv)
         err = capsys.readouterr().err
         assert e.value.code == 2 and len(err.strip().splitlines()) == 1 and words in err, err
+
+
+def test_over_target_summary_counts_the_steps_held_over_the_target():
+    """action_trace --over: the steps where TOP is held within 0.03 m horizontally and > 0.03 m above
+    BOTTOM, and the means over them, on a hand-made two-episode trace."""
+    from training.experiments.action_trace import over_target_summary
+
+    t, e = 4, 2
+    top = np.zeros((t, e, 3))
+    top[:, 0] = [[0.0, 0.0, 0.10], [0.01, 0.0, 0.10], [0.05, 0.0, 0.10], [0.0, 0.0, 0.02]]  # over at t 0, 1
+    top[:, 1] = [[0.0, 0.0, 0.10]] * 4  # over, but held only at t 3
+    grasp = np.ones((t, e, 1))
+    grasp[:3, 1] = 0.0
+    ramp = np.arange(t * e, dtype=float).reshape(t, e)
+    out = {"grasp": grasp, "green_pose": top, "yellow_pose": np.zeros((t, e, 3)), "success": np.array([1.0, 0.0]),
+           "mean": ramp, "std": ramp + 1, "q_mean": ramp, "q_up": ramp + 2, "q_down": ramp - 1, "v": np.ones((t, e))}
+    s = over_target_summary(out, "green", "yellow")
+    assert s["steps_over"] == 3 and s["episodes_ever_over"] == 2 and s["episodes_success"] == 1
+    first, second = s["per_episode"]
+    assert (first["steps_over"], first["first_step_over"], first["mean"]) == (2, 0, 1.0)  # mean of ramp[0:2, 0] = 0, 2
+    assert (second["steps_over"], second["first_step_over"], second["mean"]) == (1, 3, 7.0)
+    assert first["q_up_minus_v"] == 2.0 and first["q_down_minus_v"] == -1.0
+    assert s["over_step_means"]["mean"] == (0 + 2 + 7) / 3

@@ -10,6 +10,12 @@ dimension ``--dim`` set to +1 / −1, and ``v`` the mean over 16 actions sampled
 baseline, ``crr.crr_advantage``). So ``q_up − v`` is the advantage CRR gives an action that opens
 the fingers there, and ``q_mean − v`` the mean action's.
 
+``--over TOP,BOTTOM`` (e.g. ``green,yellow``) adds the grasp and both cubes' poses to the trace and
+a summary: per episode, the steps where TOP is held over BOTTOM (horizontally within 0.03 m, at
+least 0.03 m higher) and the means over them of the traced dimension's mean and std and of the
+critic's advantages ``q_mean − v``, ``q_up − v``, ``q_down − v``; ``--summary_json`` writes it (small,
+for docs/results; ``--json`` holds every step).
+
 ``--dim``: the action index (manipulation: 0-2 pinch velocity, 3 wrist yaw, 4 fingers); ``--obs``:
 observation entries of the manipulation layout (``tasks.manipulation.layout.OBS_SLICES``; a
 pose is traced as its position). Episodes reset from ``PRNGKey(--seed)`` (``jax.random.split`` into one key per
@@ -20,6 +26,7 @@ every step.
 from __future__ import annotations
 
 import json
+import os
 
 from training.cli import Parser, UsageError, main_guard, positive_int
 
@@ -70,6 +77,34 @@ def trace(env, trainer, state, dim: int, obs_index: dict, episodes: int, seed: i
     return out
 
 
+OVER_XY, OVER_Z = 0.03, 0.03  # --over: TOP held within OVER_XY (horizontal) and OVER_Z above BOTTOM
+
+
+def over_target_summary(out: dict, top: str, bottom: str) -> dict:
+    """--over's summary of a ``trace`` holding "grasp", "<top>_pose", "<bottom>_pose": per episode,
+    the success, the number of steps with TOP held over BOTTOM, and the means over those steps of
+    the traced dimension's mean / std and the critic's advantages (None where there are none)."""
+    import numpy as np
+
+    held = out["grasp"][..., 0] > 0.5
+    d = out[f"{top}_pose"] - out[f"{bottom}_pose"]  # [T, E, 3]
+    over = held & (np.linalg.norm(d[..., :2], axis=-1) < OVER_XY) & (d[..., 2] > OVER_Z)
+    stats = {"mean": out["mean"], "std": out["std"], "q_mean_minus_v": out["q_mean"] - out["v"],
+             "q_up_minus_v": out["q_up"] - out["v"], "q_down_minus_v": out["q_down"] - out["v"], "v": out["v"]}
+    episodes = []
+    for e in range(over.shape[1]):
+        t = np.flatnonzero(over[:, e])
+        row = {"success": int(out["success"][e]), "steps_over": int(len(t)),
+               "first_step_over": int(t[0]) if len(t) else None}
+        row.update({k: (round(float(np.mean(v[t, e])), 4) if len(t) else None) for k, v in stats.items()})
+        episodes.append(row)
+    steps = over.sum()
+    pooled = {k: round(float(np.sum(np.where(over, v, 0.0)) / max(steps, 1)), 4) for k, v in stats.items()}
+    return {"top": top, "bottom": bottom, "episodes_success": int(out["success"].sum()),
+            "episodes": int(over.shape[1]), "episodes_ever_over": int(np.any(over, axis=0).sum()),
+            "steps_over": int(steps), "over_step_means": pooled, "per_episode": episodes}
+
+
 def main(argv=None):
     p = Parser(prog="python -m training.experiments.action_trace", description=__doc__.split("\n\n")[0])
     p.add_argument("run", help="a training.run directory holding a checkpoint (manipulation task)")
@@ -79,6 +114,8 @@ def main(argv=None):
     p.add_argument("--every", type=positive_int, default=25, help="print every this many steps")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default=None)
+    p.add_argument("--over", default=None, help="TOP,BOTTOM cube names: summarise the steps TOP is held over BOTTOM")
+    p.add_argument("--summary_json", default=None, help="write --over's summary to this file")
     args = p.parse_args(argv)
 
     def run():
@@ -86,6 +123,13 @@ def main(argv=None):
         from training.experiments.readouts import load_run_state
 
         names = [n for n in args.obs.split(",") if n]
+        over = args.over.split(",") if args.over else []
+        if args.over and (len(over) != 2 or over[0] == over[1] or not all(c in L.CUBE_NAMES for c in over)):
+            raise UsageError(f"--over takes two different cube names TOP,BOTTOM ({', '.join(L.CUBE_NAMES)}), "
+                             f"got {args.over!r}")
+        if args.summary_json and not over:
+            raise UsageError("--summary_json needs --over TOP,BOTTOM")
+        names += [n for n in ["grasp"] + [f"{c}_pose" for c in over] if over and n not in names]
         bad = [n for n in names if n not in L.OBS_SLICES]
         if bad:
             raise UsageError(f"--obs: unknown entry {bad[0]!r}; valid: {', '.join(L.OBS_SLICES)}")
@@ -109,6 +153,16 @@ def main(argv=None):
             with open(args.json, "w") as f:
                 json.dump({"env_steps": int(host["env_steps"]), "dim": args.dim, "seed": args.seed,
                            **{k: v.round(4).tolist() for k, v in out.items()}}, f)
+        if over:
+            summary = over_target_summary(out, over[0], over[1])
+            print(f"{over[0]} held over {over[1]}: {summary['steps_over']} steps in {summary['episodes_ever_over']} "
+                  f"of {summary['episodes']} episodes; means there " + " ".join(
+                      f"{k}={v:+.2f}" for k, v in summary["over_step_means"].items()))
+            if args.summary_json:
+                with open(args.summary_json, "w") as f:
+                    json.dump({"run": os.path.basename(os.path.normpath(args.run)), "env_steps": int(host["env_steps"]),
+                               "dim": args.dim, "seed": args.seed, **summary}, f, indent=1)
+            out["summary"] = summary
         return out
 
     return main_guard(run)
