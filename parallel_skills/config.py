@@ -216,6 +216,11 @@ class NewSkillConfig:
     target_tau: float = 0.0  # as SchedulerConfig.target_tau
     discount: float = 0.99
     crr_mode: str = "exp"  # "exp": min(exp(A/β), clip); "indicator": 1[A > 0].
+    # CRR's baseline V̂(s) in A = Q(s, a) − V̂(s) over the J samples a_j ~ π: "mean" (the paper's
+    # CRR) or "max" (Wang et al.'s max estimator; with "indicator": binary max, only stored actions
+    # better than every sample are fitted). With "exp" the baseline cancels between a state's
+    # actions (it only moves the clip).
+    crr_advantage: str = "mean"
     crr_beta: float = 1.0
     crr_clip: float = 20.0
     num_action_samples: int = 4  # J: samples for the CRR baseline and the TD target.
@@ -259,6 +264,7 @@ class NewSkillConfig:
     def __post_init__(self):
         check_fields(self)
         check_choice("crr_mode", self.crr_mode, ("exp", "indicator"), "'exp' or 'indicator'")
+        check_choice("crr_advantage", self.crr_advantage, ("mean", "max"), "'mean' or 'max'")
         check_choice("baseline", self.baseline, BASELINES, f"one of {', '.join(BASELINES)}")
 
     @property

@@ -534,7 +534,7 @@ def new_skill_loss(params, batch: Transition, targets: NewSkillTargets, networks
     critic_loss = masked_mean(jnp.sum(0.5 * jnp.square(q - targets.y[:, None]), axis=-1), weight)
     q_all = jnp.min(q_ens, axis=-1)  # advantages from the clipped (minimum) estimate
     q_sg = jax.lax.stop_gradient(q_all)
-    advantage = crr_advantage(q_sg[:, 0], q_sg[:, 1:1 + j])
+    advantage = crr_advantage(q_sg[:, 0], q_sg[:, 1:1 + j], config.crr_advantage)
     w_crr = crr_weights(advantage, config.crr_mode, config.crr_beta, config.crr_clip)
     loss_crr = crr_policy_loss(gaussian_log_prob(mean, std, action), w_crr, weight)
     mpo_stats: Dict[str, jax.Array] = {}

@@ -21,6 +21,10 @@ def test_advantage_and_weights():
     np.testing.assert_allclose(w_beta, [math.e, 20.0], rtol=1e-6)  # exp(5)=148 clipped
     wi = crr_weights(adv, "indicator")
     np.testing.assert_array_equal(wi, [0.0, 0.0, 1.0, 0.0, 1.0])
+    # The max estimator (CRR's "binary max" with the indicator): only actions above every sample pass.
+    adv_max = crr_advantage(q_taken, q_sampled, "max")
+    np.testing.assert_allclose(adv_max, [-1.0, 0.0, 28.0, -2.0, 0.5])
+    np.testing.assert_array_equal(crr_weights(adv_max, "indicator"), [0.0, 0.0, 1.0, 0.0, 1.0])
     # Huge advantages do not overflow.
     assert np.isfinite(crr_weights(jnp.array([1e6]), "exp", 1.0, 20.0)).all()
 
