@@ -432,3 +432,34 @@ def test_over_target_summary_counts_the_steps_held_over_the_target():
     assert (second["steps_over"], second["first_step_over"], second["mean"]) == (1, 3, 7.0)
     assert first["q_up_minus_v"] == 2.0 and first["q_down_minus_v"] == -1.0
     assert s["over_step_means"]["mean"] == (0 + 2 + 7) / 3
+
+
+def test_replay_census_counts_the_stored_rows_by_sign_and_skill(uninterrupted, monkeypatch, capsys):
+    """training.experiments.replay_census: the held-over test on hand-made observations; on the
+    checkpoint's replay (every stored row taken as "over"), the up / down parts and their per-skill
+    rows and CRR weights add up; bad input is one line."""
+    from tasks.manipulation import layout as L
+    from training.experiments import replay_census
+    from training.run_files import load_checkpointed_run
+
+    obs = np.zeros((3, L.OBS_SIZE), np.float32)
+    obs[:, L.GRASP] = [1.0, 0.0, 1.0]
+    obs[:, L.cube_pos("green")] = [[0.01, 0.0, 0.10], [0.0, 0.0, 0.10], [0.05, 0.0, 0.10]]
+    np.testing.assert_array_equal(replay_census.over_rows(obs, "green", "yellow"), [True, False, False])
+
+    _, run = uninterrupted
+    monkeypatch.setattr(replay_census, "over_rows", lambda o, top, bottom: np.ones(len(o), bool))
+    out = replay_census.census(load_checkpointed_run(run), "green", "yellow", 4)
+    assert out["rows_over"] > 0 and out["up"]["rows"] + out["down"]["rows"] == out["rows_over"] <= out["replay_rows"]
+    for part in (out["up"], out["down"]):
+        assert sum(s["rows"] for s in part["by_skill"].values()) == part["rows"]
+        assert abs(sum(s["crr_weight_sum"] for s in part["by_skill"].values()) - part["crr_weight_sum"]) < 0.01 * len(
+            part["by_skill"]) + 1e-6
+    assert -1.0 <= out["crr_weighted_mean_of_dim"] <= 1.0 and out["crr"]["mode"] == "exp"
+    monkeypatch.undo()
+    capsys.readouterr()
+    for argv, words in (([run, "--over", "green"], "two different cube names"), ([run, "--dim", "9"], "0..4")):
+        with pytest.raises(SystemExit) as e:
+            replay_census.main(argv)
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and len(err.strip().splitlines()) == 1 and words in err, err
