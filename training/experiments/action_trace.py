@@ -80,6 +80,16 @@ def trace(env, trainer, state, dim: int, obs_index: dict, episodes: int, seed: i
 OVER_XY, OVER_Z = 0.03, 0.03  # --over: TOP held within OVER_XY (horizontal) and OVER_Z above BOTTOM
 
 
+def parse_over(text: str) -> tuple[str, str]:
+    """``"green,yellow"`` -> ("green", "yellow"); UsageError (one line) unless two different cube names."""
+    from tasks.manipulation import layout as L
+
+    over = text.split(",")
+    if len(over) != 2 or over[0] == over[1] or not all(c in L.CUBE_NAMES for c in over):
+        raise UsageError(f"--over takes two different cube names TOP,BOTTOM ({', '.join(L.CUBE_NAMES)}), got {text!r}")
+    return over[0], over[1]
+
+
 def over_target_summary(out: dict, top: str, bottom: str) -> dict:
     """--over's summary of a ``trace`` holding "grasp", "<top>_pose", "<bottom>_pose": per episode,
     the success, the number of steps with TOP held over BOTTOM, and the means over those steps of
@@ -123,10 +133,7 @@ def main(argv=None):
         from training.experiments.readouts import load_run_state
 
         names = [n for n in args.obs.split(",") if n]
-        over = args.over.split(",") if args.over else []
-        if args.over and (len(over) != 2 or over[0] == over[1] or not all(c in L.CUBE_NAMES for c in over)):
-            raise UsageError(f"--over takes two different cube names TOP,BOTTOM ({', '.join(L.CUBE_NAMES)}), "
-                             f"got {args.over!r}")
+        over = list(parse_over(args.over)) if args.over else []
         if args.summary_json and not over:
             raise UsageError("--summary_json needs --over TOP,BOTTOM")
         names += [n for n in ["grasp"] + [f"{c}_pose" for c in over] if over and n not in names]

@@ -117,12 +117,10 @@ def main(argv=None):
 
     def run():
         from tasks.manipulation import layout as L
+        from training.experiments.action_trace import parse_over
         from training.run_files import load_checkpointed_run
 
-        over = args.over.split(",")
-        if len(over) != 2 or over[0] == over[1] or not all(c in L.CUBE_NAMES for c in over):
-            raise UsageError(f"--over takes two different cube names TOP,BOTTOM ({', '.join(L.CUBE_NAMES)}), "
-                             f"got {args.over!r}")
+        over = parse_over(args.over)
         if not os.path.isdir(args.run):
             raise UsageError(f"run directory {args.run} does not exist")
         loaded = load_checkpointed_run(args.run)
