@@ -2,9 +2,9 @@
 docs/design.md "New skill").
 
 Policy loss −E[f(A)·log π(a|s)] with A(s, a) = Q(s, a) − mean_j Q(s, a_j), a_j ~ π(.|s)
-(or − max_j: CRR's max estimator), f = min(exp(A/β), clip) ("exp") or 1[A > 0] ("indicator"). The critic Q(s, a) is learnt by
-TD with the new skill as target policy. ``critic_weighted_action``: the new skill read out
-through its critic at evaluation (CRR's critic-weighted policy, argmax form).
+(or − max_j: CRR's max estimator), f = min(exp(A/β), clip) ("exp") or 1[A > 0] ("indicator").
+The critic Q(s, a) is learnt by TD with the new skill as target policy. ``critic_weighted_action``:
+the new skill read out through its critic at evaluation (CRR's critic-weighted policy, argmax form).
 """
 
 from __future__ import annotations

@@ -480,7 +480,9 @@ def tile_obs(x, n: int):
     return jnp.broadcast_to(x[:, None, :], (x.shape[0], n, x.shape[-1]))
 
 
-def _sample_n(mean, std, n: int, key):
+def sample_n(mean, std, n: int, key):
+    """n actions per state from the Gaussian (``networks.sample_action``, clipped).
+    mean, std [B, A] -> [B, n, A]."""
     b, a = mean.shape
     return sample_action(jnp.broadcast_to(mean[:, None], (b, n, a)), jnp.broadcast_to(std[:, None], (b, n, a)), key)
 
@@ -493,7 +495,7 @@ def new_skill_targets(state: LearnerState, batch: Transition, networks, key_next
     policy, critic = networks
     j = config.num_action_samples
     t_mean_next, t_std_next = policy.apply(state.target_policy_params, batch.next_obs)
-    a_next = _sample_n(t_mean_next, t_std_next, j, key_next)
+    a_next = sample_n(t_mean_next, t_std_next, j, key_next)
     q_next = jnp.min(critic_values(critic, state.target_critic_params, tile_obs(batch.next_obs, j), a_next),
                      axis=-1)  # [B, J]
     y = td_target(batch.reward, batch.discount, q_next, config.discount)
@@ -502,7 +504,7 @@ def new_skill_targets(state: LearnerState, batch: Transition, networks, key_next
         a_mpo = sample_mixture(teacher.means, teacher.std, key_mpo, config.mpo_num_samples)
     elif uses_gaussian_mpo(config):
         t_mean, t_std = policy.apply(state.target_policy_params, batch.obs)
-        a_mpo = _sample_n(t_mean, t_std, config.mpo_num_samples, key_mpo)
+        a_mpo = sample_n(t_mean, t_std, config.mpo_num_samples, key_mpo)
     return NewSkillTargets(y=y, mpo_mean=t_mean, mpo_std=t_std, mpo_actions=a_mpo)
 
 
@@ -524,7 +526,7 @@ def new_skill_loss(params, batch: Transition, targets: NewSkillTargets, networks
     n_mpo = targets.mpo_actions.shape[1] if targets.mpo_actions.ndim == 3 else 0  # (none for pure DAGGER)
     obs, action, weight = batch.obs, batch.action, batch.weight
     mean, std = policy.apply(policy_params, obs)
-    a_j = jax.lax.stop_gradient(_sample_n(mean, std, j, key_crr))
+    a_j = jax.lax.stop_gradient(sample_n(mean, std, j, key_crr))
     q = critic_values(critic, critic_params, obs, action)  # [B, E]: every critic regresses on the same target
     # The sampled actions' values only feed the (stop-gradient) advantage and MPO weights: evaluated
     # with stop-gradient parameters, so that the backward pass runs on the stored actions' rows alone.

@@ -36,11 +36,10 @@ def trace(env, trainer, state, dim: int, obs_index: dict, episodes: int, seed: i
     module docstring); obs name: [T, E, size]; "success": [E]} of ``episodes`` mean-action episodes of
     the checkpoint's new skill. ``obs_index``: name -> slice."""
     import jax
+    import jax.numpy as jnp
     import numpy as np
 
-    import jax.numpy as jnp
-
-    from parallel_skills import learners, networks
+    from parallel_skills import learners
     from parallel_skills import normalization as obs_norm
 
     _, critic = learners.new_skill_networks(int(env.action_size), trainer.config.new_skill)
@@ -59,8 +58,7 @@ def trace(env, trainer, state, dim: int, obs_index: dict, episodes: int, seed: i
         key, k_v = jax.random.split(key)
         o = obs_norm.normalize(norm, s.obs)
         mean, std = new_apply(params, o)
-        samples = networks.sample_action(jnp.broadcast_to(mean[:, None], (episodes, 16, mean.shape[-1])),
-                                         jnp.broadcast_to(std[:, None], (episodes, 16, mean.shape[-1])), k_v)
+        samples = learners.sample_n(mean, std, 16, k_v)
         critic_out = (q_min(o, mean), q_min(o, mean.at[:, dim].set(1.0)), q_min(o, mean.at[:, dim].set(-1.0)),
                       jnp.mean(q_min(learners.tile_obs(o, 16), samples), axis=1))
         nxt = jax.vmap(env.step)(s, mean)
@@ -80,6 +78,15 @@ def trace(env, trainer, state, dim: int, obs_index: dict, episodes: int, seed: i
 OVER_XY, OVER_Z = 0.03, 0.03  # --over: TOP held within OVER_XY (horizontal) and OVER_Z above BOTTOM
 
 
+def held_over(grasp, top_pos, bottom_pos):
+    """bool [...]: the top cube held (grasp [...] > 0.5) over the bottom one, within OVER_XY
+    horizontally and more than OVER_Z above it (positions [..., 3]; numpy)."""
+    import numpy as np
+
+    d = top_pos - bottom_pos
+    return (grasp > 0.5) & (np.linalg.norm(d[..., :2], axis=-1) < OVER_XY) & (d[..., 2] > OVER_Z)
+
+
 def parse_over(text: str) -> tuple[str, str]:
     """``"green,yellow"`` -> ("green", "yellow"); UsageError (one line) unless two different cube names."""
     from tasks.manipulation import layout as L
@@ -96,9 +103,7 @@ def over_target_summary(out: dict, top: str, bottom: str) -> dict:
     the traced dimension's mean / std and the critic's advantages (None where there are none)."""
     import numpy as np
 
-    held = out["grasp"][..., 0] > 0.5
-    d = out[f"{top}_pose"] - out[f"{bottom}_pose"]  # [T, E, 3]
-    over = held & (np.linalg.norm(d[..., :2], axis=-1) < OVER_XY) & (d[..., 2] > OVER_Z)
+    over = held_over(out["grasp"][..., 0], out[f"{top}_pose"], out[f"{bottom}_pose"])  # [T, E]
     stats = {"mean": out["mean"], "std": out["std"], "q_mean_minus_v": out["q_mean"] - out["v"],
              "q_up_minus_v": out["q_up"] - out["v"], "q_down_minus_v": out["q_down"] - out["v"], "v": out["v"]}
     episodes = []

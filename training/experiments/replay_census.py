@@ -25,14 +25,11 @@ from training.cli import Parser, UsageError, main_guard
 
 def over_rows(obs, top: str, bottom: str):
     """bool [R]: raw observations [R, O] where cube ``top`` is held over ``bottom``
-    (``action_trace.OVER_XY`` / ``OVER_Z``)."""
-    import numpy as np
-
+    (``action_trace.held_over``)."""
     from tasks.manipulation import layout as L
-    from training.experiments.action_trace import OVER_XY, OVER_Z
+    from training.experiments.action_trace import held_over
 
-    d = obs[:, L.cube_pos(top)] - obs[:, L.cube_pos(bottom)]
-    return (obs[:, L.GRASP] > 0.5) & (np.linalg.norm(d[:, :2], axis=-1) < OVER_XY) & (d[:, 2] > OVER_Z)
+    return held_over(obs[:, L.GRASP], obs[:, L.cube_pos(top)], obs[:, L.cube_pos(bottom)])
 
 
 def census(run, top: str, bottom: str, dim: int, key_seed: int = 0, chunk: int = 4096) -> dict:
@@ -41,7 +38,7 @@ def census(run, top: str, bottom: str, dim: int, key_seed: int = 0, chunk: int =
     import jax.numpy as jnp
     import numpy as np
 
-    from parallel_skills import learners, networks
+    from parallel_skills import learners
     from parallel_skills import normalization as obs_norm
     from parallel_skills.crr import crr_advantage, crr_weights
     from parallel_skills.train import make_replay
@@ -62,9 +59,7 @@ def census(run, top: str, bottom: str, dim: int, key_seed: int = 0, chunk: int =
     def crr_of(o, a, key):
         o = obs_norm.normalize(norm, o)
         mean, std = policy.apply(ns.policy_params, o)
-        b, n = mean.shape
-        a_j = networks.sample_action(jnp.broadcast_to(mean[:, None], (b, j, n)),
-                                     jnp.broadcast_to(std[:, None], (b, j, n)), key)
+        a_j = learners.sample_n(mean, std, j, key)
         q = jnp.min(learners.critic_values(critic, ns.critic_params, o, a), axis=-1)
         q_j = jnp.min(learners.critic_values(critic, ns.critic_params, learners.tile_obs(o, j), a_j), axis=-1)
         adv = crr_advantage(q, q_j, cfg.crr_advantage)
