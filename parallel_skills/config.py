@@ -223,6 +223,14 @@ class NewSkillConfig:
     crr_advantage: str = "mean"
     crr_beta: float = 1.0
     crr_clip: float = 20.0
+    # λ ≥ 0 (beyond the paper): policy loss += −λ·mean_b min_e Q_e(s_b, μ(s_b)), the deterministic
+    # policy gradient (Silver et al. 2014; TD3+BC's form, Fujimoto & Gu 2021) on the Gaussian's mean
+    # through the critic (its parameters held). CRR fits the mean to the stored actions' weighted
+    # average, which the majority of a state's actions sets whatever their advantage (a hold over
+    # the target, docs/skills.md); this term moves the mean up the critic's slope by about
+    # λ·∂Q/∂a·σ²/f̄ where the data leave it uncertain (wide σ) and little where they do not.
+    # 0: pure CRR (the paper's).
+    dpg_weight: float = 0.0
     num_action_samples: int = 4  # J: samples for the CRR baseline and the TD target.
     # > 1: clipped double Q (Fujimoto et al. 2018): independent critics, the TD target and the CRR
     # advantage use their minimum. With one critic (CRR as in the paper) the new skill's Q drifted
@@ -266,6 +274,8 @@ class NewSkillConfig:
         check_choice("crr_mode", self.crr_mode, ("exp", "indicator"), "'exp' or 'indicator'")
         check_choice("crr_advantage", self.crr_advantage, ("mean", "max"), "'mean' or 'max'")
         check_choice("baseline", self.baseline, BASELINES, f"one of {', '.join(BASELINES)}")
+        if self.dpg_weight < 0.0:
+            raise FieldError("dpg_weight", "a non-negative number (0: pure CRR)", self.dpg_weight)
 
     @property
     def reads_teacher(self) -> bool:

@@ -474,6 +474,7 @@ class NewSkillAux(NamedTuple):
     std: jax.Array  # [B, A] the policy's std at s
     policy_loss: jax.Array
     mpo: Dict[str, jax.Array]  # mpo_kl_mean, mpo_kl_std, mpo_temperature (MPO mix only)
+    q_at_mean: jax.Array  # [B] min_e Q_e(s, μ(s)) (dpg_weight > 0 only, else [0])
 
 
 def tile_obs(x, n: int):
@@ -518,7 +519,8 @@ def new_skill_loss(params, batch: Transition, targets: NewSkillTargets, networks
                    config: NewSkillConfig, teacher: Optional[SkillMixture] = None) -> Tuple[jax.Array, NewSkillAux]:
     """Critics: Σ_e 0.5·(Q_e(s, a) − y)² over weighted rows. Policy: CRR −f(A)·log π(a|s),
     A = min_e Q_e(s, a) − mean_j min_e Q_e(s, a_j), a_j ~ π(.|s); with mpo_alpha < 1,
-    α·CRR + (1 − α)·L_baseline (``baseline_policy_loss``). ``params`` = (policy, critic, dual)."""
+    α·CRR + (1 − α)·L_baseline (``baseline_policy_loss``); with dpg_weight λ > 0, + ``dpg_policy_loss``.
+    ``params`` = (policy, critic, dual)."""
     policy_params, critic_params, dual_params = params
     policy, critic = networks
     j = config.num_action_samples
@@ -546,8 +548,12 @@ def new_skill_loss(params, batch: Transition, targets: NewSkillTargets, networks
         policy_loss = config.mpo_alpha * loss_crr + (1.0 - config.mpo_alpha) * loss_baseline
     else:
         policy_loss = loss_crr
+    q_at_mean = jnp.zeros((0,))
+    if config.dpg_weight > 0.0:  # the critic's slope at the mean (its parameters held)
+        q_at_mean = jnp.min(critic_values(critic, jax.lax.stop_gradient(critic_params), obs, mean), axis=-1)  # [B]
+        policy_loss = policy_loss + dpg_policy_loss(q_at_mean, weight, config.dpg_weight)
     aux = NewSkillAux(critic_loss=critic_loss, q=q_all[:, 0], advantage=advantage, crr_weight=w_crr, std=std,
-                      policy_loss=policy_loss, mpo=mpo_stats)
+                      policy_loss=policy_loss, mpo=mpo_stats, q_at_mean=q_at_mean)
     return critic_loss + policy_loss, aux
 
 
@@ -616,6 +622,14 @@ BASELINE_LOSSES = {
 }
 
 
+def dpg_policy_loss(q_at_mean: jnp.ndarray, weight: jnp.ndarray, dpg_weight: float) -> jnp.ndarray:
+    """−λ·mean_b Q(s_b, μ(s_b)) over weighted rows: the deterministic policy gradient (Silver et al.
+    2014) on the Gaussian's mean, added to CRR's loss when ``NewSkillConfig.dpg_weight`` λ > 0.
+    ``q_at_mean`` [B] from critic parameters held fixed, so the gradient reaches the mean only.
+    [B], [B] -> scalar."""
+    return -dpg_weight * masked_mean(q_at_mean, weight)
+
+
 def new_skill_stats(aux: NewSkillAux, batch: Transition) -> Dict[str, jax.Array]:
     """Scalars to log of one new-skill update."""
     weight = batch.weight
@@ -627,6 +641,8 @@ def new_skill_stats(aux: NewSkillAux, batch: Transition) -> Dict[str, jax.Array]
         advantage_mean=masked_mean(aux.advantage, weight),
         policy_loss=aux.policy_loss,
     )
+    if aux.q_at_mean.shape[0]:
+        stats["q_at_mean"] = masked_mean(aux.q_at_mean, weight)
     for name in ("mpo_kl_mean", "mpo_kl_std", "mpo_temperature", "kl_reg_ess", "dagger_cross_entropy"):
         if name in aux.mpo:
             stats[name] = aux.mpo[name]

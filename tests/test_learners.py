@@ -332,3 +332,28 @@ def test_length_entropy_floor_keeps_the_length_choice_from_collapsing():
     np.testing.assert_allclose(length_entropy_floor_nats(dataclasses.replace(SCFG, length_entropy_floor=0.9)),
                                0.9 * np.log(len(K)), rtol=1e-6)
     assert entropies[0.0] < 0.5 * np.log(len(K)) < entropies[0.9], entropies
+
+
+def _hold_or_release_batch(n: int = 64):
+    """One state, its stored actions mostly "holds" (action[0] = −0.6, reward 0) and one in eight
+    a "release" (+0.6, reward 1), terminal: Q = r. CRR's fit of the mean follows the majority."""
+    release = (jnp.arange(n) % 8 == 0)
+    action = jnp.stack([jnp.where(release, 0.6, -0.6), jnp.zeros(n)], axis=-1)
+    obs = jnp.broadcast_to(jnp.linspace(-1.0, 1.0, O), (n, O))
+    return Transition.batch(obs=obs, action=action, reward=release.astype(jnp.float32), discount=jnp.zeros(n),
+                            next_obs=obs)
+
+
+@pytest.mark.parametrize("dpg_weight,sign", [(0.0, -1.0), (5.0, 1.0)])
+def test_dpg_weight_moves_the_mean_up_the_critic_where_crr_follows_the_majority(dpg_weight, sign):
+    """docs/skills.md: CRR fits the mean to the stored actions' weighted average, so a rare better
+    action (a release among holds) leaves the mean on the holds' side; −λ·Q(s, μ(s)) moves it to the
+    better side. Pure CRR: mean action[0] < 0; λ = 5: > 0."""
+    cfg = dataclasses.replace(NCFG, dpg_weight=dpg_weight, discount=0.0)
+    batch = _hold_or_release_batch()
+    state = new_skill_learner_init(jax.random.PRNGKey(0), O, A, cfg)
+    new_state, metrics = _scan_updates(new_skill_learner_update, cfg, 400)(state, batch, jax.random.PRNGKey(1))
+    assert _finite(metrics) and _finite(new_state)
+    assert ("q_at_mean" in metrics) == (dpg_weight > 0)
+    mean, _ = make_new_skill_apply(A, cfg)(new_state.policy_params, batch.obs[:1])
+    assert sign * float(mean[0, 0]) > 0.1, float(mean[0, 0])
