@@ -112,6 +112,7 @@ BAD_CONFIGS = [
     ("crr_mode", {"new_skill": {"crr_mode": "bogus"}}, "crr_mode must be 'exp' or 'indicator'"),
     ("crr_advantage", {"new_skill": {"crr_advantage": "median"}}, "crr_advantage must be 'mean' or 'max'"),
     ("dpg_weight", {"new_skill": {"dpg_weight": -1.0}}, "new_skill.dpg_weight must be a non-negative number"),
+    ("rhpo_dpg", {"method": "rhpo", "new_skill": {"dpg_weight": 1.0}}, "new_skill.dpg_weight must be 0"),
     ("method", {"method": "magic"}, "method must be one of skills, scratch, finetune, kl_reg, dagger, rhpo"),
     ("baseline", {"new_skill": {"baseline": "bc"}}, "baseline must be one of mpo, kl_reg, dagger"),
     ("rhpo_lengths", {"method": "rhpo", "scheduler": {"skill_lengths": [2, 3]}}, "skill_lengths must be [1]"),
