@@ -232,6 +232,12 @@ class NewSkillConfig:
     # 0: pure CRR (the paper's).
     dpg_weight: float = 0.0
     num_action_samples: int = 4  # J: samples for the CRR baseline and the TD target.
+    # 0: the new skill samples its batches from the whole buffer (the paper's). N > 0 (beyond the
+    # paper): from the N rows inserted last (at most the buffer's), while the scheduler keeps the
+    # whole buffer. CRR's mean settles at the weighted average of the actions its batches hold, a
+    # fixed point of the policy and its own data; the older the data, the more it holds the
+    # actions of earlier policies (docs/skills.md: the holds over the target).
+    replay_window: int = 0
     # > 1: clipped double Q (Fujimoto et al. 2018): independent critics, the TD target and the CRR
     # advantage use their minimum. With one critic (CRR as in the paper) the new skill's Q drifted
     # above any achievable return on sparse stack (114 > r_max/(1-γ) = 100 at rewarded replay

@@ -112,7 +112,8 @@ def make_replay(environment, config: TrainConfig) -> Replay:
                   action_size=int(environment.action_size), scheduler_batch_size=sc.batch_size,
                   new_skill_batch_size=nc.batch_size, n_step=int(nc.n_step), discount=nc.discount,
                   scheduler_n_step=sched_n, scheduler_discount=sc.discount,
-                  skill_lengths=tuple(sc.skill_lengths), augmentation=bool(sc.augmentation))
+                  skill_lengths=tuple(sc.skill_lengths), augmentation=bool(sc.augmentation),
+                  new_skill_window=int(nc.replay_window))
 
 
 def run_learner(update, sample, config, state, key, num_updates: int, ready):

@@ -11,6 +11,7 @@ import pytest
 
 import tasks
 from parallel_skills import NewSkillConfig, SchedulerConfig, Skill, TrainConfig, learners
+from parallel_skills import normalization as obs_norm
 from parallel_skills.nstep import execution_nstep_fields
 from parallel_skills.replay import PendingStep, Replay, SchedulerBatch, Transition
 from parallel_skills.train import EpisodeAccumulator, make_evaluation, make_trainer
@@ -182,3 +183,25 @@ def test_decision_entropies_and_shares_per_decision():
 def test_scheduler_n_step_must_be_positive():
     with pytest.raises(ValueError, match="n_step"):
         dataclasses.replace(SchedulerConfig(), n_step=0)
+
+
+def test_new_skill_window_samples_only_the_rows_inserted_last():
+    """NewSkillConfig.replay_window: the new skill's batches come from the last W rows of the ring
+    (wrapping past its end), the scheduler's from every stored row."""
+    replay = Replay(capacity=8, num_envs=2, obs_size=1, action_size=1, scheduler_batch_size=8,
+                    new_skill_batch_size=8, new_skill_window=3)
+    state = replay.init()
+    for t in range(6):  # 12 rows into 8 slots: rows 4..11 stored, the last three 9, 10, 11
+        row = jnp.asarray([[2.0 * t, 2.0 * t + 1.0]])
+        state, _ = replay.insert(state, None, Transition.zeros(1, 1, (1, 2)).replace(reward=row),
+                                 jnp.zeros((1, 2), bool))
+    norm = obs_norm.init(1)
+    keys = jax.random.split(jax.random.PRNGKey(0), 8)
+    recent = {float(r) for k in keys for r in np.asarray(replay.sample_new_skill(state, norm, k).reward)}
+    assert recent == {9.0, 10.0, 11.0}
+    every = {float(r) for k in keys for r in np.asarray(replay.sample_scheduler(state, norm, k).reward)}
+    assert every <= set(map(float, range(4, 12))) and len(every) > 3
+    fresh = replay.init()  # fewer rows than the window: all of them
+    fresh, _ = replay.insert(fresh, None, Transition.zeros(1, 1, (1, 2)).replace(reward=jnp.asarray([[5.0, 6.0]])),
+                             jnp.zeros((1, 2), bool))
+    assert set(np.asarray(replay.sample_new_skill(fresh, norm, jax.random.PRNGKey(1)).reward).tolist()) == {5.0, 6.0}
