@@ -250,7 +250,6 @@ class Replay:
             batch = _normalized(rows, normalizer)
         return (batch, raw) if raw_obs else batch
 
-
     def sample_recent(self, state, key, batch_size: int, window: int):
         """``batch_size`` rows drawn uniformly, with replacement, from the ``window`` rows inserted
         last (all stored rows while fewer): the buffer's ring order, newest at ``current_index − 1``.
