@@ -113,11 +113,14 @@ class Actor:
         return advance_counters(actor.c, actor.i, actor.k_idx, i_new.astype(jnp.int32), k_new.astype(jnp.int32),
                                 actor.first, self.skill_lengths)
 
-    def actions(self, obs, nobs, new_params, i, k_a, k_s, greedy: bool):
+    def actions(self, obs, nobs, new_params, i, k_a, k_s, greedy: bool, new_skill_sampled: bool | None = None):
         """Each env's action [B, A] from its running skill i [B]; collection noise (not greedy) on
-        the frozen skills' actions, those whose ``Skill.collection_noise`` is set."""
+        the frozen skills' actions, those whose ``Skill.collection_noise`` is set. The new skill's
+        action is sampled from its Gaussian unless greedy (then its mean); ``new_skill_sampled``
+        overrides that choice (the greedy scheduler with the new skill as it collects)."""
         mean, std = self.new_skill_apply(new_params, nobs)
-        new_action = networks.deterministic_action(mean) if greedy else networks.sample_action(mean, std, k_a)
+        sampled = (not greedy) if new_skill_sampled is None else bool(new_skill_sampled)
+        new_action = networks.sample_action(mean, std, k_a) if sampled else networks.deterministic_action(mean)
         action = self.skill_set.actions(new_action, obs, i, k_s)
         if self.skill_noise_std > 0 and not greedy:
             noise = self.skill_noise_std * jax.random.normal(jax.random.fold_in(k_s, 1), action.shape)
@@ -125,15 +128,17 @@ class Actor:
             action = jnp.where(noisy[:, None], jnp.clip(action + noise, -1.0, 1.0), action)
         return action
 
-    def step(self, actor: ActorState, scheduler_params, new_params, normalizer, key, greedy: bool = False):
-        """One env step of the batch: decide, act, step, auto-reset.
+    def step(self, actor: ActorState, scheduler_params, new_params, normalizer, key, greedy: bool = False,
+             new_skill_sampled: bool | None = None):
+        """One env step of the batch: decide, act, step, auto-reset. ``greedy``: argmax decisions,
+        no collection noise, the new skill's mean action (``new_skill_sampled`` True: its samples).
         Returns (actor, Transition [B], StepStats [B])."""
         k_i, k_k, k_a, k_s, k_r = jax.random.split(key, 5)
         obs = actor.env_state.obs
         nobs = obs_norm.normalize(normalizer, obs)
         logits_i, logits_k = self.scheduler_apply(scheduler_params, nobs)
         c, i, k_idx, is_decision = self.decide(actor, logits_i, logits_k, k_i, k_k, greedy)
-        action = self.actions(obs, nobs, new_params, i, k_a, k_s, greedy)
+        action = self.actions(obs, nobs, new_params, i, k_a, k_s, greedy, new_skill_sampled)
         nxt = jax.vmap(self.env.step)(actor.env_state, action)
         finite = _finite(nxt.obs) & jnp.isfinite(nxt.reward)
         done = (nxt.done > 0) | ~finite

@@ -354,6 +354,7 @@ class Evaluators(NamedTuple):
     new_skill_critic_weighted: Callable  # (new_params, critic_params, normalizer, key): the best of
     # crr.CRITIC_WEIGHTED_CANDIDATES actions by its critic (``crr.critic_weighted_action``)
     scheduler: Callable  # (sched_params, new_params, normalizer, key): greedy decisions
+    scheduler_new_skill_sampled: Callable  # the same, the new skill's actions sampled from π_N
     scheduler_sampled: Callable  # (sched_params, critic_params, new_params, normalizer, key)
 
 
@@ -366,7 +367,9 @@ def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: in
     key)`` with the action its own critic values highest of the mean and samples from its Gaussian
     (``crr.critic_weighted_action``); ``scheduler(sched_params, new_params, normalizer, key)`` acts
     greedily (argmax z) with its counters, through the run's acting step (``Actor.step``) on
-    ``num_episodes`` envs; ``scheduler_sampled(sched_params, critic_params, new_params, normalizer,
+    ``num_episodes`` envs, the frozen skills without collection noise and the new skill's mean action;
+    ``scheduler_new_skill_sampled`` (same arguments) the same greedy decisions with the new skill's
+    actions sampled, as when the scheduler's critic learnt its values; ``scheduler_sampled(sched_params, critic_params, new_params, normalizer,
     key)`` runs it as it collects (sampled, with the collection noise) and adds
     ``discounted_return`` and its critic's ``value_at_reset`` per episode. Each returns a dict of
     per-episode ``return`` / ``success`` [num_episodes]."""
@@ -395,17 +398,21 @@ def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: in
 
         return rollout_episodes(env, policy, key, num_episodes, episode_length)
 
-    def eval_scheduler(sched_params, new_params, normalizer, key):
-        k0, k1 = jax.random.split(key)
+    def scheduler_evaluation(new_skill_sampled: bool):
+        def evaluate(sched_params, new_params, normalizer, key):
+            k0, k1 = jax.random.split(key)
 
-        def body(carry, k):
-            state, ret, succ = carry
-            state, tr, st = actor.step(state, sched_params, new_params, normalizer, k, greedy=True)
-            return (state, ret + tr.reward, jnp.maximum(succ, st.ep_success)), None
+            def body(carry, k):
+                state, ret, succ = carry
+                state, tr, st = actor.step(state, sched_params, new_params, normalizer, k, greedy=True,
+                                           new_skill_sampled=new_skill_sampled)
+                return (state, ret + tr.reward, jnp.maximum(succ, st.ep_success)), None
 
-        z = jnp.zeros(num_episodes)
-        (_, ret, succ), _ = jax.lax.scan(body, (actor.reset(k0), z, z), jax.random.split(k1, episode_length))
-        return {"return": ret, "success": succ}
+            z = jnp.zeros(num_episodes)
+            (_, ret, succ), _ = jax.lax.scan(body, (actor.reset(k0), z, z), jax.random.split(k1, episode_length))
+            return {"return": ret, "success": succ}
+
+        return evaluate
 
     def eval_scheduler_sampled(sched_params, critic_params, new_params, normalizer, key):
         """The scheduler as it collects (sampled decisions, collection noise, the new skill's
@@ -433,7 +440,9 @@ def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: in
     return Evaluators(new_skill=jax.jit(new_skill_evaluation(mean_action)),
                       new_skill_sampled=jax.jit(new_skill_evaluation(networks.sample_action)),
                       new_skill_critic_weighted=jax.jit(eval_new_skill_critic_weighted),
-                      scheduler=jax.jit(eval_scheduler), scheduler_sampled=jax.jit(eval_scheduler_sampled))
+                      scheduler=jax.jit(scheduler_evaluation(False)),
+                      scheduler_new_skill_sampled=jax.jit(scheduler_evaluation(True)),
+                      scheduler_sampled=jax.jit(eval_scheduler_sampled))
 
 
 def _checked_config(environment, skills, config: TrainConfig, num_timesteps, num_envs, checkpoint_every,
@@ -485,13 +494,16 @@ def train(
     step_fn: Optional[Callable[[int], None]] = None,
     auto_config: bool = True,
     mesh=None,
+    policy_params_fn: Optional[Callable[[int, "TrainedParams", dict], None]] = None,
 ):
     """Train SkillS on ``environment`` (Brax env API) with frozen ``skills``.
 
     Returns ``(make_policy, params, metrics)``: ``params`` a ``TrainedParams`` (the new skill's
     and the scheduler's policy parameters and the observation statistics), ``metrics`` the last evaluation and training metrics (Python floats / lists).
     ``progress_fn(env_steps, metrics)`` is called after every evaluation (Brax style);
-    ``step_fn(env_steps)`` after every iteration (a progress bar's count; a host int, no device sync).
+    ``step_fn(env_steps)`` after every iteration (a progress bar's count; a host int, no device sync);
+    ``policy_params_fn(env_steps, params, metrics)`` after every evaluation with the evaluated
+    ``TrainedParams`` (Brax's ``policy_params_fn``; e.g. to keep the best evaluated new skill).
     ``auto_config``: fill the device's defaults with ``resolve(config)``; False: train with ``config``
     exactly (``training.run`` resolves it once, from what the user set, and records it).
 
@@ -517,7 +529,7 @@ def train(
         initial_states=None if initial_state is None else [initial_state], host_states=[host_state],
         checkpoint_fns=[checkpoint_fn], checkpoint_every=checkpoint_every,
         checkpoint_min_seconds=checkpoint_min_seconds, step_fn=step_fn, auto_config=auto_config, mesh=mesh,
-        seed_axis=False)
+        seed_axis=False, policy_params_fns=[policy_params_fn])
     return make_policy, params[0], metrics[0]
 
 
@@ -541,6 +553,7 @@ def train_seeds(
     auto_config: bool = True,
     mesh=None,
     seed_axis: bool = True,
+    policy_params_fns: Optional[Sequence[Optional[Callable[[int, "TrainedParams", dict], None]]]] = None,
 ):
     """``train`` for several seeds at once: one compiled iteration ``vmap``-ed over the seed axis
     (S = len(seeds) runs in lockstep: on an accelerator S times the envs for about the cost of one
@@ -562,8 +575,10 @@ def train_seeds(
     n = len(seeds)
     per_seed = lambda xs: list(xs) if xs is not None else [None] * n  # noqa: E731
     progress_fns, host_states, checkpoint_fns = per_seed(progress_fns), per_seed(host_states), per_seed(checkpoint_fns)
-    if any(len(x) != n for x in (progress_fns, host_states, checkpoint_fns)):
-        raise ValueError(f"progress_fns, host_states and checkpoint_fns need one entry per seed ({n})")
+    policy_params_fns = per_seed(policy_params_fns)
+    if any(len(x) != n for x in (progress_fns, host_states, checkpoint_fns, policy_params_fns)):
+        raise ValueError(f"progress_fns, host_states, checkpoint_fns and policy_params_fns need one entry per "
+                         f"seed ({n})")
     if not seed_axis and n != 1:
         raise ValueError(f"seed_axis=False trains one seed, got {n}")
     config = _checked_config(environment, skills, config, num_timesteps, num_envs, checkpoint_every, auto_config)
@@ -583,7 +598,7 @@ def train_seeds(
     evaluates = [make_evaluation(eval_env or environment, trainer, episode_length, s, mesh) for s in seeds]
     state, metrics = _host_loop(trainer, iteration, state, n if seed_axis else None, evaluates, num_timesteps,
                                 host_states, progress_fns, checkpoint_fns, checkpoint_every, checkpoint_min_seconds,
-                                step_fn)
+                                step_fn, policy_params_fns)
     params = [TrainedParams.of(_seed_slice(state, i if seed_axis else None)) for i in range(n)]
     make_policy = make_policy_factory(int(environment.action_size), config, trainer.num_skills_total)
     return make_policy, params, metrics
@@ -614,7 +629,8 @@ def _seed_slice(tree, i: Optional[int]):
 
 
 def _host_loop(trainer: Trainer, iteration, state, num_seeds: Optional[int], evaluates, num_timesteps,
-               host_states, progress_fns, checkpoint_fns, checkpoint_every, checkpoint_min_seconds, step_fn):
+               host_states, progress_fns, checkpoint_fns, checkpoint_every, checkpoint_min_seconds, step_fn,
+               policy_params_fns=None):
     """The host side of ``train`` / ``train_seeds``: iterations, per-seed training statistics,
     evaluations, progress and checkpoint calls. ``num_seeds`` None: ``state`` is one run; else it is
     batched over that many seeds and every per-seed list has one entry each. Returns (state,
@@ -657,6 +673,8 @@ def _host_loop(trainer: Trainer, iteration, state, num_seeds: Optional[int], eva
                 metrics[j].update(env_steps=int(one.env_steps), wall_time=time.perf_counter() - t0, iteration=it + 1)
                 if progress_fns[j] is not None:
                     progress_fns[j](int(one.env_steps), metrics[j])
+                if policy_params_fns and policy_params_fns[j] is not None:
+                    policy_params_fns[j](int(one.env_steps), TrainedParams.of(one), metrics[j])
         # (Only at evaluations: the agreement across processes is a collective.)
         spaced = evaluated and sharding.agreed(time.perf_counter() - last_checkpoint >= checkpoint_min_seconds)
         if _checkpoint_due(it, spi, checkpoint_every, spaced, last) and any(checkpoint_fns):
@@ -702,6 +720,13 @@ def make_evaluation(env, trainer: Trainer, episode_length: int, seed: int,
             ev = evals.scheduler(state.scheduler.policy_params, state.new_skill.policy_params, state.normalizer, k2)
             out["eval/scheduler_success"] = mean(ev["success"])
             out["eval/scheduler_return"] = mean(ev["return"])
+            # The same greedy decisions with the new skill's sampled actions: the scheduler's choices
+            # apart from the new skill's mean-action read-out (docs/skills.md).
+            k6 = place(jax.random.fold_in(jax.random.fold_in(base_key, iteration), 4))
+            ev = evals.scheduler_new_skill_sampled(state.scheduler.policy_params, state.new_skill.policy_params,
+                                                   state.normalizer, k6)
+            out["eval/scheduler_new_skill_sampled_success"] = mean(ev["success"])
+            out["eval/scheduler_new_skill_sampled_return"] = mean(ev["return"])
         if method.learns_scheduler:  # the scheduler as it collects; its critic at the reset states
             ev = evals.scheduler_sampled(state.scheduler.policy_params, state.scheduler.critic_params,
                               state.new_skill.policy_params, state.normalizer, k3)

@@ -211,3 +211,36 @@ def test_stage_argv_passes_start_states_on():
     assert argv[argv.index("--start_states") + 1] == "mixed"
     assert "--start_states" not in stage_argv("lift_green", build_parser().parse_args(["--out", "c"]), "s", "r", False)
     assert "--start_states" not in stage_argv("lift_green", args, "s", "r", resume=True)
+
+
+def test_publish_best_selects_on_its_own_seed_and_keeps_the_last_on_ties(tmp_path, monkeypatch):
+    """``--publish best``: the final or the best evaluated new skill, by their success on the
+    selection seed's episodes (ties and a missing best file: the final one)."""
+    import training.evaluate
+    from training.chain import SELECTION_SEED, build_parser, select_skill
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "new_skill.npz").write_bytes(b"")
+    args = build_parser().parse_args(["--out", "c", "--publish", "best", "--eval_episodes", "4"])
+    path, sel = select_skill("stack", args, str(run))
+    assert path == str(run / "new_skill.npz") and sel["published"] == "last" and "missing" in sel["why"]
+    (run / "best_new_skill.npz").write_bytes(b"")
+    (run / "best_new_skill.json").write_text(json.dumps({"success": 0.9, "env_steps": 1200}))
+    seen = []
+
+    def fake(scores):
+        def evaluate_policy(task, physics, path, episodes, seed, start_states="table"):
+            seen.append((os.path.basename(path), episodes, seed))
+            return {"success": np.asarray(scores[os.path.basename(path)])}
+        return evaluate_policy
+
+    monkeypatch.setattr(training.evaluate, "evaluate_policy", fake({"new_skill.npz": [1, 0, 0, 1],
+                                                                    "best_new_skill.npz": [1, 1, 0, 1]}))
+    path, sel = select_skill("stack", args, str(run))
+    assert path == str(run / "best_new_skill.npz") and sel["published"] == "best"
+    assert (sel["success_last"], sel["success_best"], sel["best_env_steps"]) == (0.5, 0.75, 1200)
+    assert {s for _, _, s in seen} == {SELECTION_SEED} and {e for _, e, _ in seen} == {4}
+    monkeypatch.setattr(training.evaluate, "evaluate_policy", fake({"new_skill.npz": [1, 0], "best_new_skill.npz": [0, 1]}))
+    path, sel = select_skill("stack", args, str(run))
+    assert path == str(run / "new_skill.npz") and sel["published"] == "last"

@@ -37,3 +37,22 @@ def test_zero_std_means_no_noise():
     a = np.asarray(actor.actions(obs, obs, None, jnp.array([0, 1, 2, 0, 1, 2]), jax.random.PRNGKey(1),
                                  jax.random.PRNGKey(2), greedy=False))
     np.testing.assert_allclose(a[[0, 3]], 0.1)
+
+
+def test_greedy_with_the_new_skill_sampled_keeps_the_frozen_skills_noise_free():
+    """``eval/scheduler_new_skill_sampled_*``: greedy acting, the new skill's action sampled."""
+    skills = [Skill.from_fn("noisy", lambda obs, key: jnp.full(3, 0.1))]
+    actor = Actor(env=None, skill_set=SkillSet(skills), scheduler_apply=None,
+                  new_skill_apply=lambda p, obs: (jnp.full(obs.shape[:-1] + (3,), 0.3),
+                                                  jnp.full(obs.shape[:-1] + (3,), 0.5)),
+                  skill_lengths=(1,), num_envs=4, skill_noise_std=0.3)
+    obs, i = jnp.zeros((4, 2)), jnp.array([0, 1, 0, 1])
+    ka, ks = jax.random.split(jax.random.PRNGKey(0))
+    mean = np.asarray(actor.actions(obs, obs, None, i, ka, ks, greedy=True))
+    sampled = np.asarray(actor.actions(obs, obs, None, i, ka, ks, greedy=True, new_skill_sampled=True))
+    collect = np.asarray(actor.actions(obs, obs, None, i, ka, ks, greedy=False))
+    np.testing.assert_allclose(mean[[0, 2]], 0.1)
+    np.testing.assert_allclose(sampled[[0, 2]], 0.1)  # frozen skill: no collection noise
+    np.testing.assert_allclose(mean[[1, 3]], 0.3, atol=1e-6)  # the new skill's mean
+    assert np.all(np.abs(sampled[[1, 3]] - 0.3) > 1e-4)  # its sample (std 0.5) ...
+    np.testing.assert_allclose(sampled[[1, 3]], collect[[1, 3]])  # ... the one collection draws

@@ -130,6 +130,15 @@ def test_sigkill_then_resume_matches_uninterrupted_run(uninterrupted):
     assert _rows(run_b) == rows
     _assert_same_arrays(_npz(os.path.join(run_a, "new_skill.npz")), _npz(os.path.join(run_b, "new_skill.npz")))
     _assert_same_arrays(_npz(os.path.join(run_a, "export.npz")), _npz(os.path.join(run_b, "export.npz")))
+    # The best evaluated new skill: the last evaluation of the highest success, the same after a resume.
+    _assert_same_arrays(_npz(os.path.join(run_a, "best_new_skill.npz")),
+                        _npz(os.path.join(run_b, "best_new_skill.npz")))
+    with open(os.path.join(run_a, "metrics.csv")) as f:
+        evals = [(float(r["eval/new_skill_success"]), int(r["env_steps"])) for r in csv.DictReader(f)]
+    with open(os.path.join(run_a, "best_new_skill.json")) as f:
+        best = json.load(f)
+    top = max(e[0] for e in evals)
+    assert (best["success"], best["env_steps"]) == (top, max(e[1] for e in evals if e[0] == top))
     with open(os.path.join(run_a, "export.json")) as fa, open(os.path.join(run_b, "export.json")) as fb:
         ja, jb = json.load(fa), json.load(fb)
     assert ja["metadata"].pop("command") != jb["metadata"].pop("command") and ja == jb  # (different --out)

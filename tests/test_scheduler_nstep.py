@@ -147,7 +147,8 @@ def test_scheduler_nstep_trains_and_one_step_keeps_the_state_layout():
     for key in ("eval/scheduler_sampled_success", "eval/scheduler_sampled_return",
                 "eval/scheduler_discounted_return", "eval/scheduler_value_at_reset",
                 "eval/new_skill_sampled_success", "eval/new_skill_sampled_return",
-                "eval/new_skill_critic_weighted_success", "eval/new_skill_critic_weighted_return"):
+                "eval/new_skill_critic_weighted_success", "eval/new_skill_critic_weighted_return",
+                "eval/scheduler_new_skill_sampled_success", "eval/scheduler_new_skill_sampled_return"):
         assert np.isfinite(ev[key]), key
     assert 0.0 <= ev["eval/scheduler_sampled_success"] <= 1.0
     assert 0.0 <= ev["eval/new_skill_sampled_success"] <= 1.0

@@ -39,6 +39,8 @@ STAGES = ("lift_green", "lift_yellow", "lift_blue", "stack")
 DEFAULT_TIMESTEPS = {"lift": 300_000, "stack": 2_000_000}
 # Arguments that only set budgets: a rerun may raise them (the stages below them are extended).
 BUDGET_ARGS = ("lift_timesteps", "stack_timesteps", "timesteps")
+PUBLISH = ("last", "best")  # --publish
+SELECTION_SEED = 1  # --publish best compares the candidates on these episodes, not the reported ones (seed 0)
 
 
 def build_parser():
@@ -68,6 +70,11 @@ def build_parser():
     p.add_argument("--config", default=None, help="JSON file of TrainConfig fields, passed to every stage")
     p.add_argument("--eval_episodes", type=positive_int, default=64,
                    help="episodes of the final evaluation of each stage's new skill (default 64)")
+    p.add_argument("--publish", default="last", choices=list(PUBLISH),
+                   help="which new skill of a stage is published: last (the run's final one; default) or best: "
+                        "of the final one and the run's best evaluated one (best_new_skill.npz), the one with the "
+                        "higher success over --eval_episodes episodes of a selection seed (1) on the stage's "
+                        "resets; the published success is then measured as always (seed 0)")
     return p
 
 
@@ -201,11 +208,14 @@ def check_budgets(stages: list[str], args, out: str) -> None:
 
 
 def publish_skill(task: str, args, run_dir: str, skill_dir: str, chain_command: str) -> dict:
-    """Evaluate the stage's new skill alone and write it to ``skill_dir/<task>.npz`` + sidecar."""
+    """Evaluate the stage's new skill alone and write it to ``skill_dir/<task>.npz`` + sidecar
+    (``--publish best``: the better of the final and the best evaluated new skill, ``select_skill``)."""
     from parallel_skills import Skill
     from training.evaluate import evaluate_policy
 
-    src = os.path.join(run_dir, "new_skill.npz")
+    src, selection = os.path.join(run_dir, "new_skill.npz"), None
+    if args.publish == "best":
+        src, selection = select_skill(task, args, run_dir)
     result = evaluate_policy(task, args.physics, src, episodes=args.eval_episodes, seed=0)
     success = float(result["success"].mean())
     ret = float(result["return"].mean())
@@ -223,8 +233,34 @@ def publish_skill(task: str, args, run_dir: str, skill_dir: str, chain_command: 
         meta["start_states_success"] = dict(start_states=args.start_states, success=float(wide["success"].mean()),
                                             eval_return=float(wide["return"].mean()),
                                             eval_command=f"{eval_cmd} --start_states {args.start_states}")
+    if selection is not None:
+        meta["selection"] = selection
     Skill.save(dataclasses.replace(skill, name=task, metadata={}), dst, **meta)
-    return {"success": success, "return": ret, "skill": dst}
+    return dict({"success": success, "return": ret, "skill": dst}, **({"selection": selection} if selection else {}))
+
+
+def select_skill(task: str, args, run_dir: str):
+    """``--publish best``: the run's final new skill or its best evaluated one (``best_new_skill.npz``),
+    whichever succeeds more over ``--eval_episodes`` episodes of ``SELECTION_SEED`` on the stage's
+    resets (ties: the final one). Returns (path, the selection's record for the sidecar)."""
+    from training.evaluate import evaluate_policy
+    from training.run_files import BEST_NEW_SKILL
+
+    last, best = os.path.join(run_dir, "new_skill.npz"), os.path.join(run_dir, BEST_NEW_SKILL)
+    if not os.path.isfile(best):
+        return last, {"published": "last", "why": f"{BEST_NEW_SKILL} missing (a run older than the option)"}
+    scores = {}
+    for name, path in (("last", last), ("best", best)):
+        r = evaluate_policy(task, args.physics, path, episodes=args.eval_episodes, seed=SELECTION_SEED,
+                            start_states=args.start_states)
+        scores[name] = float(r["success"].mean())
+    with open(best[:-4] + ".json") as f:
+        best_meta = json.load(f)
+    chosen = "best" if scores["best"] > scores["last"] else "last"
+    return (best if chosen == "best" else last), {
+        "published": chosen, "selection_seed": SELECTION_SEED, "selection_episodes": args.eval_episodes,
+        "start_states": args.start_states, "success_last": scores["last"], "success_best": scores["best"],
+        "best_env_steps": best_meta.get("env_steps"), "best_run_success": best_meta.get("success")}
 
 
 def main(argv=None):

@@ -176,6 +176,8 @@ class Progress:
     def line(steps: int, rate: float, m: dict) -> str:
         """The plain per-evaluation line."""
         sched = f" scheduler={m['eval/scheduler_success']:.2f}" if "eval/scheduler_success" in m else ""
+        if "eval/scheduler_new_skill_sampled_success" in m:  # greedy, the new skill's actions sampled
+            sched += f" scheduler_new_sampled={m['eval/scheduler_new_skill_sampled_success']:.2f}"
         sampled = (f" sampled={m['eval/new_skill_sampled_success']:.2f}" if "eval/new_skill_sampled_success" in m
                    else "")  # the new skill alone with sampled actions
         weighted = (f" critic_weighted={m['eval/new_skill_critic_weighted_success']:.2f}"

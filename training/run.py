@@ -9,7 +9,9 @@ Writes into ``--out`` (a new directory; an existing one is only ever written int
 ``--resume``): ``config.json`` (the whole run configuration; it fixes the config of a resumed
 run), ``metrics.csv`` (one row per evaluation), ``checkpoints/`` (full training state, the latest
 2, see ``training.checkpointing``), ``new_skill.npz`` + ``.json`` (the new skill as a loadable
-skill: ``python -m training.evaluate --policy DIR/new_skill.npz``) and ``export.npz`` + ``.json``
+skill: ``python -m training.evaluate --policy DIR/new_skill.npz``), ``best_new_skill.npz`` + ``.json``
+(the new skill of the best evaluation so far, rewritten during the run; its sidecar has its env
+steps and success), ``export.npz`` + ``.json``
 (new skill and scheduler, ``training.export``), TensorBoard event files (``tensorboard --logdir
 DIR``; ``training.logging_utils``), ``curves.png`` and ``skill_usage.png`` (``training.plot``) and,
 with ``--video``, ``new_skill.mp4`` (or ``.gif`` without ffmpeg; ``training.video``).
@@ -531,7 +533,7 @@ def _train(outs, runs, resolved, env, resume: bool, video: bool = False, mesh=No
     bar = Progress(int(run.num_timesteps), int(host_states[0]["env_steps"]) if host_states else 0,
                    **({} if dist.primary else {"out": io.StringIO(), "tty": False}))
     files = [run_files.RunFiles(out, r, resolved, resume, host_states[i] if host_states else None, bar,
-                                f"s{r.seed} " if grouped else "", primary=dist.primary)
+                                f"s{r.seed} " if grouped else "", primary=dist.primary, env=env)
              for i, (out, r) in enumerate(zip(outs, runs))]
     try:
         make_policy, params, metrics = train_seeds(
@@ -539,7 +541,7 @@ def _train(outs, runs, resolved, env, resume: bool, video: bool = False, mesh=No
             progress_fns=[f.progress for f in files], initial_states=initial_states, host_states=host_states,
             checkpoint_fns=[f.checkpoint for f in files], checkpoint_every=run.checkpoint_every,
             checkpoint_min_seconds=run_files.CHECKPOINT_MIN_SECONDS, step_fn=bar.advance, auto_config=False,
-            mesh=mesh, seed_axis=grouped)
+            mesh=mesh, seed_axis=grouped, policy_params_fns=[f.policy_params for f in files])
     finally:
         bar.close()
         for f in files:

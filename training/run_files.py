@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import os
 import sys
 from typing import Any, NamedTuple, Optional
@@ -32,7 +33,9 @@ CSV_FIELDS = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skil
               # The new skill alone with actions sampled from its Gaussian (as it collects).
               "eval/new_skill_sampled_success", "eval/new_skill_sampled_return",
               # The new skill alone, each action the best of the mean and samples by its critic.
-              "eval/new_skill_critic_weighted_success", "eval/new_skill_critic_weighted_return"]
+              "eval/new_skill_critic_weighted_success", "eval/new_skill_critic_weighted_return",
+              # The greedy scheduler with the new skill's sampled actions (its mean: eval/scheduler_*).
+              "eval/scheduler_new_skill_sampled_success", "eval/scheduler_new_skill_sampled_return"]
 
 
 # Without --checkpoint_every: checkpoint at evaluations, but at most once a minute (a lift run on a
@@ -220,14 +223,32 @@ def set_aside_later_checkpoints(out, iteration: int) -> list:
     return moved
 
 
-class RunFiles:
-    """One run directory's files while it trains: metrics.csv rows, TensorBoard events and
-    checkpoints (``progress`` and ``checkpoint`` are what ``train`` calls back)."""
+BEST_NEW_SKILL = "best_new_skill.npz"  # the new skill at its best evaluation so far (``RunFiles.policy_params``)
 
-    def __init__(self, out, run, resolved, resume: bool, host_state, bar, prefix: str = "", primary: bool = True):
+
+def best_recorded(out) -> float:
+    """``eval/new_skill_success`` of the run's ``best_new_skill.json`` (-inf when there is none)."""
+    path = os.path.join(out, BEST_NEW_SKILL[:-4] + ".json")
+    try:
+        with open(path) as f:
+            return float(json.load(f)["success"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return float("-inf")
+
+
+class RunFiles:
+    """One run directory's files while it trains: metrics.csv rows, TensorBoard events,
+    checkpoints and the best evaluated new skill (``progress``, ``checkpoint`` and ``policy_params``
+    are what ``train`` calls back)."""
+
+    def __init__(self, out, run, resolved, resume: bool, host_state, bar, prefix: str = "", primary: bool = True,
+                 env=None):
         from training.checkpointing import Checkpointer
 
         self.out, self.bar, self.prefix, self.primary = out, bar, prefix, primary
+        self.run, self.resolved, self.env = run, resolved, env
+        # (A resume re-runs the evaluations after its checkpoint exactly: the file it finds is theirs.)
+        self.best = best_recorded(out) if resume else float("-inf")
         self.ckpt = Checkpointer(out, save_replay=run.replay_checkpoint)
         csv_path = os.path.join(out, "metrics.csv")
         start_steps = int(host_state["env_steps"]) if host_state else 0
@@ -260,6 +281,23 @@ class RunFiles:
         self.csv_rows += 1
         self.tb.log(steps, m)
         self.bar.update(steps, m, self.prefix)
+
+    def policy_params(self, steps, params, m):
+        """Keep the new skill of the best evaluation so far (ties: the later one) as
+        ``best_new_skill.npz`` + .json, beside the last one (``new_skill.npz``, written at the end)."""
+        success = float(m.get("eval/new_skill_success", float("nan")))
+        if not self.primary or self.env is None or not success >= self.best:
+            return
+        from parallel_skills import Skill
+
+        self.best = success
+        skill = Skill.gaussian_mlp(f"{self.run.task}_new_skill", params.new_skill_params(), self.env.action_size,
+                                   self.resolved.new_skill.hidden)
+        skill.save(os.path.join(self.out, BEST_NEW_SKILL), obs_size=int(self.env.observation_size),
+                   task=self.run.task, physics=self.run.physics, seed=int(self.run.seed), command=self.run.command,
+                   success=success, eval_return=float(m.get("eval/new_skill_return", 0.0)),
+                   env_steps=int(steps), selected="best evaluation so far (eval/new_skill_success, ties: later)",
+                   trained_with=list(self.run.skills))
 
     def checkpoint(self, state, host):
         if not self.primary:  # (orbax writes the host JSON from the primary process only)
