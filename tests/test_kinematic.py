@@ -120,6 +120,28 @@ def test_pair_start_states_put_that_cube_on_the_other_in_half_the_resets():
         tasks.check_start_states("stack", "kinematic", "green_on_green")
 
 
+def test_loose_pair_start_states_are_resting_stacks_off_centre_turned_and_fingers_anywhere():
+    """start_states="yellow_on_blue_loose": as yellow_on_blue, yellow off blue's centre by up to
+    LOOSE_OFFSET per axis and turned by up to π/4, yet resting (settle leaves it), nothing
+    overlapping, the fingers anywhere from closed to open."""
+    keys = jax.random.split(jax.random.PRNGKey(3), 512)
+    s = jax.vmap(tasks.make("stack", start_states="yellow_on_blue_loose").reset)(keys).pipeline_state
+    p = np.asarray(s.cube_pos)
+    y, b = L.CUBE_INDEX["yellow"], L.CUBE_INDEX["blue"]
+    on = p[:, y, 2] > L.CUBE_HALF + 0.5 * L.CUBE_SIZE
+    assert 0.42 < on.mean() < 0.58, on.mean()
+    off = np.abs(p[on, y, :2] - p[on, b, :2])
+    assert off.max() <= K.LOOSE_OFFSET + 1e-6 and np.mean(np.linalg.norm(off, axis=-1) > K.STACKED_OFFSET) > 0.5
+    np.testing.assert_allclose(p[on, y, 2], p[on, b, 2] + L.CUBE_SIZE, atol=1e-6)
+    turn = np.abs(np.asarray(s.cube_yaw)[on, y] - np.asarray(s.cube_yaw)[on, b])
+    assert turn.max() <= K.LOOSE_YAW + 1e-6 and np.median(turn) > 0.2
+    settled = np.asarray(jax.vmap(lambda q, w: K.settle(y, q, w))(s.cube_pos, s.cube_yaw))
+    np.testing.assert_allclose(settled, p, atol=1e-6)
+    assert not np.any(jax.vmap(K.cubes_interpenetrate)(s))
+    ap = np.asarray(s.aperture)
+    assert ap[on].min() < 0.2 * L.APERTURE_OPEN and np.all(ap[~on] == L.APERTURE_OPEN)
+
+
 # Each scripted controller on its own task over 64 random initial states (issue #2 thresholds).
 CONTROLLERS = [
     ("reach_green", "reach_green", 0.9), ("reach_yellow", "reach_yellow", 0.9), ("reach_blue", "reach_blue", 0.9),

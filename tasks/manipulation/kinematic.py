@@ -316,32 +316,45 @@ START_STATES = {
 # state stack_green_on_yellow starts from in triple stack.
 PAIR_START_STATES = {f"{t}_on_{b}": (L.CUBE_INDEX[t], L.CUBE_INDEX[b])
                      for t in L.CUBE_NAMES for b in L.CUBE_NAMES if t != b}
-for _name in PAIR_START_STATES:
+for _name in list(PAIR_START_STATES):
     _t, _b = _name.split("_on_")
     START_STATES[_name] = (f"half as 'table'; half with {_t} resting on {_b} (centred within 5 mm): "
                            f"a chain's precondition for the skill that comes after")
-START_STATES_ALLOWED = "table, mixed, or TOP_on_BOTTOM of two of green, yellow, blue (e.g. yellow_on_blue)"
+    # "..._loose": the precondition as a learnt skill leaves it (the neural stack_yellow_on_blue
+    # leaves yellow a median 12 mm off blue's centre, 0.4 rad turned, fingers closed: docs/skills.md).
+    PAIR_START_STATES[_name + "_loose"] = PAIR_START_STATES[_name]
+    START_STATES[_name + "_loose"] = (f"as {_name}, {_t}'s centre within 14 mm of {_b}'s (each axis), "
+                                      f"turned by up to π/4, the fingers anywhere from closed to open")
+START_STATES_ALLOWED = ("table, mixed, or TOP_on_BOTTOM of two of green, yellow, blue (e.g. yellow_on_blue), "
+                        "or that with _loose (e.g. yellow_on_blue_loose)")
 PAIR_TRIES = 8  # table resets tried for a pair's placement
 ARRANGE_TABLE, ARRANGE_STACKED, ARRANGE_ADJACENT = 0, 1, 2
 ADJACENT_GAP = (0.001, 0.008)  # m between the touching faces of an adjacent pair
 STACKED_OFFSET = 0.005  # m, the top cube's centre within this of the bottom's (each axis)
+LOOSE_OFFSET = 0.014  # m, the same for the "_loose" pairs (≤ 19.8 mm off: over the bottom cube in any yaw)
+LOOSE_YAW = float(jnp.pi / 4)  # rad, the "_loose" top cube turned by up to this (faces repeat every π/2)
 
 
 PAIRS = jnp.array([(a, b) for a in range(L.NUM_CUBES) for b in range(L.NUM_CUBES) if a != b])  # (top, bottom)
 
 
-def pair_candidates(s: KinematicState, rng: jax.Array, arrangement):
+def pair_candidates(s: KinematicState, rng: jax.Array, arrangement, loose: bool = False):
     """Every (ordered pair, side) placement of ``arrangement`` from the table reset ``s``:
     (cube_pos [C, 3, 3], cube_yaw [C, 3], valid [C]) with C = 6 pairs × 4 sides. Stacked: the top
     cube centred on the bottom one within ``STACKED_OFFSET``, resting on it, faces aligned (the
     side is ignored); adjacent: on the floor beside that side of the bottom cube, faces touching
     across a gap in ``ADJACENT_GAP``, same yaw. Valid: inside the basket, touching neither the
-    third cube nor the gripper."""
+    third cube nor the gripper. ``loose``: stacked within ``LOOSE_OFFSET``, turned by up to
+    ``LOOSE_YAW``."""
     top, bottom = jnp.repeat(PAIRS[:, 0], 4), jnp.repeat(PAIRS[:, 1], 4)
     side = jnp.tile(jnp.arange(4), PAIRS.shape[0])
     k_off, k_gap = jax.random.split(rng)
     base, yaw = s.cube_pos[bottom], s.cube_yaw[bottom]  # [C, 3], [C]
-    off = jax.random.uniform(k_off, (2,), minval=-STACKED_OFFSET, maxval=STACKED_OFFSET)
+    reach = LOOSE_OFFSET if loose else STACKED_OFFSET
+    off = jax.random.uniform(k_off, (2,), minval=-reach, maxval=reach)
+    if loose:  # (the adjacent arrangement keeps its faces parallel)
+        turn = jax.random.uniform(jax.random.fold_in(k_off, 1), (), minval=-LOOSE_YAW, maxval=LOOSE_YAW)
+        yaw = jnp.where(arrangement == ARRANGE_STACKED, yaw + turn, yaw)
     stacked = jnp.concatenate([base[:, :2] + off, base[:, 2:] + 2 * L.CUBE_HALF], axis=-1)
     gap = jax.random.uniform(k_gap, (), minval=ADJACENT_GAP[0], maxval=ADJACENT_GAP[1])
     angle = yaw + 0.5 * jnp.pi * side
@@ -360,13 +373,13 @@ def pair_candidates(s: KinematicState, rng: jax.Array, arrangement):
     return jax.vmap(place)(top, pos, yaw)
 
 
-def arrange_pair(s: KinematicState, rng: jax.Array, arrangement, pair=None) -> KinematicState:
+def arrange_pair(s: KinematicState, rng: jax.Array, arrangement, pair=None, loose: bool = False) -> KinematicState:
     """``s`` (a table reset) with one cube moved onto (``ARRANGE_STACKED``) or beside
     (``ARRANGE_ADJACENT``) another: a placement drawn uniformly from the valid ones of
     ``pair_candidates`` (of the ordered pair ``pair`` = (top, bottom) only, if given);
-    ``ARRANGE_TABLE``, or no valid placement: ``s`` unchanged."""
+    ``ARRANGE_TABLE``, or no valid placement: ``s`` unchanged. ``loose``: see ``pair_candidates``."""
     k_cand, k_pick = jax.random.split(rng)
-    cube_pos, cube_yaw, valid = pair_candidates(s, k_cand, arrangement)
+    cube_pos, cube_yaw, valid = pair_candidates(s, k_cand, arrangement, loose)
     if pair is not None:
         valid = valid & (jnp.repeat(PAIRS[:, 0], 4) == pair[0]) & (jnp.repeat(PAIRS[:, 1], 4) == pair[1])
     pick = jnp.argmax(jnp.where(valid, jax.random.uniform(k_pick, valid.shape), -1.0))
@@ -382,11 +395,16 @@ def sample_start_state(rng: jax.Array, start_states: str = "table") -> Kinematic
         return sample_initial_state(rng)
     k_table, k_mode, k_pair = jax.random.split(rng, 3)
     if start_states in PAIR_START_STATES:  # the pair fits only some table resets: try a few
+        loose = start_states.endswith("_loose")
         tries = jax.vmap(lambda k: arrange_pair(sample_initial_state(k), k_pair, ARRANGE_STACKED,
-                                                PAIR_START_STATES[start_states]))(jax.random.split(k_table, PAIR_TRIES))
+                                                PAIR_START_STATES[start_states], loose))(
+            jax.random.split(k_table, PAIR_TRIES))
         top = PAIR_START_STATES[start_states][0]
         placed = tries.cube_pos[:, top, 2] > L.CUBE_HALF + 0.5 * L.CUBE_SIZE
         stacked = jax.tree_util.tree_map(lambda x: x[jnp.argmax(placed)], tries)
+        if loose:  # the fingers as a skill may leave them
+            k_ap = jax.random.fold_in(k_pair, 7)
+            stacked = stacked.replace(aperture=jax.random.uniform(k_ap, (), minval=0.0, maxval=L.APERTURE_OPEN))
         use = jax.random.bernoulli(k_mode)  # half the resets
         return jax.tree_util.tree_map(lambda a, b: jnp.where(use, a, b), stacked, sample_initial_state(k_table))
     arrangement = jax.random.randint(k_mode, (), 0, 3)

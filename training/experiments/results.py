@@ -13,7 +13,9 @@ with the variant's budget = the most env steps any of its seeds reached:
   before ¼, ½ and all of the budget (the columns name those evaluations' env steps: real evaluation
   points, not the fractions), as mean ± sample standard deviation (n − 1) over the n seeds, each
   seed's value at the budget, each seed's best evaluation and its first evaluation ≥ 0.8;
-* the scheduler alone (greedy; at ½ and all of the budget), the new skill with sampled actions where the run recorded it, the
+* the scheduler alone (greedy; at ½ and all of the budget), and at the budget: greedy with the new
+  skill's sampled actions, as it collects (sampled), and the new skill with sampled actions, each where
+  the run recorded it; the
   share of the env steps the scheduler gave the new skill in the last evaluation interval, wall
   time per run (minutes, as the run's last row records it) and resident memory (first → largest
   ``rss_mb``), per seed.
@@ -32,6 +34,9 @@ ARCHIVE = os.path.join("docs", "results", "paper_runs")
 OUT = os.path.join("docs", "results")
 FRACTIONS = (0.25, 0.5, 1.0)
 NEW_SKILL, SCHEDULER, SAMPLED = "eval/new_skill_success", "eval/scheduler_success", "eval/new_skill_sampled_success"
+# The scheduler as it collects (sampled decisions, collection noise, the new skill sampled), and
+# greedy with the new skill's sampled actions (runs since 2026-12-06; older ones: "–").
+SCHEDULER_SAMPLED, SCHEDULER_NEW_SAMPLED = "eval/scheduler_sampled_success", "eval/scheduler_new_skill_sampled_success"
 METHOD_ORDER = ("skills", "scratch", "finetune", "rhpo", "kl_reg", "dagger")
 HEADER = ("<!-- Written by `python -m training.experiments.results` from docs/results/paper_runs/{task}/; "
           "edit the runs, not this file (tests/test_results.py rebuilds it). -->")
@@ -158,7 +163,8 @@ def cost_row(name: str, runs: list) -> str:
                       for r in runs])
     wall = per_seed([f"{r.rows[-1]['wall_time'] / 60:.1f}" if isinstance(r.rows[-1].get("wall_time"), float)
                      else None for r in runs])
-    return f"| {name} | {half(SCHEDULER)} | {final(SCHEDULER)} | {final(SAMPLED)} | {share} | {wall} | {per_seed([r.rss() for r in runs])} |"
+    return (f"| {name} | {half(SCHEDULER)} | {final(SCHEDULER)} | {final(SCHEDULER_NEW_SAMPLED)} | "
+            f"{final(SCHEDULER_SAMPLED)} | {final(SAMPLED)} | {share} | {wall} | {per_seed([r.rss() for r in runs])} |")
 
 
 def task_table(archive: str, task: str) -> str:
@@ -189,9 +195,10 @@ def task_table(archive: str, task: str) -> str:
                   "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
         lines += [new_skill_row(n, variants[n]) for n in group] + [""]
     lines += ["## Scheduler alone, sampled new skill, usage and cost (per seed, at the budget)", "",
-              "| variant | scheduler alone at ½ | scheduler alone | new skill, sampled actions | new skill's share of the "
+              "| variant | scheduler alone at ½ | scheduler alone | scheduler alone, the new skill's actions sampled | "
+              "scheduler as it collects (sampled) | new skill, sampled actions | new skill's share of the "
               "last interval's env steps | wall time per run (min) | rss_mb first → max |",
-              "| --- | --- | --- | --- | --- | --- | --- |"]
+              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     lines += [cost_row(n, variants[n]) for n in names] + [""]
     return "\n".join(lines)
 
