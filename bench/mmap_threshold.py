@@ -8,7 +8,10 @@ fragment it, so resident memory creeps up (docs/scaling.md, "Stack memory").
     python bench/mmap_threshold.py                           # lift, 100k replay, 120k env steps
     python bench/mmap_threshold.py --replay_size 300000 --num_timesteps 300000
 
-Pin it to one core (``taskset -c N``) for a ratio that another process does not disturb.
+Pin it to one core (``taskset -c N``) for a ratio that another process does not disturb. The run
+here writes no checkpoints (``training.run`` copies the replay to the host for each), so it measures
+the speed cost of the fixed threshold more than the memory it saves (docs/scaling.md, "Memory with
+a smaller replay").
 """
 
 from __future__ import annotations
