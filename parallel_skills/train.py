@@ -369,8 +369,8 @@ def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: in
     greedily (argmax z) with its counters, through the run's acting step (``Actor.step``) on
     ``num_episodes`` envs, the frozen skills without collection noise and the new skill's mean action;
     ``scheduler_new_skill_sampled`` (same arguments) the same greedy decisions with the new skill's
-    actions sampled, as when the scheduler's critic learnt its values; ``scheduler_sampled(sched_params, critic_params, new_params, normalizer,
-    key)`` runs it as it collects (sampled, with the collection noise) and adds
+    actions sampled, as when the scheduler's critic learnt its values; ``scheduler_sampled(sched_params,
+    critic_params, new_params, normalizer, key)`` runs it as it collects (sampled, with the collection noise) and adds
     ``discounted_return`` and its critic's ``value_at_reset`` per episode. Each returns a dict of
     per-episode ``return`` / ``success`` [num_episodes]."""
     new_apply = learners.make_new_skill_apply(int(env.action_size), trainer.config.new_skill)

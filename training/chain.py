@@ -233,10 +233,11 @@ def publish_skill(task: str, args, run_dir: str, skill_dir: str, chain_command: 
         meta["start_states_success"] = dict(start_states=args.start_states, success=float(wide["success"].mean()),
                                             eval_return=float(wide["return"].mean()),
                                             eval_command=f"{eval_cmd} --start_states {args.start_states}")
+    result = {"success": success, "return": ret, "skill": dst}
     if selection is not None:
-        meta["selection"] = selection
+        meta["selection"] = result["selection"] = selection
     Skill.save(dataclasses.replace(skill, name=task, metadata={}), dst, **meta)
-    return dict({"success": success, "return": ret, "skill": dst}, **({"selection": selection} if selection else {}))
+    return result
 
 
 def select_skill(task: str, args, run_dir: str):

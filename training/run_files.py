@@ -223,6 +223,17 @@ def set_aside_later_checkpoints(out, iteration: int) -> list:
     return moved
 
 
+def save_new_skill(path, run, resolved, env, params, **metadata):
+    """The run's new skill in ``params`` (``TrainedParams``) as a loadable Gaussian-MLP skill file
+    ``path`` + .json: sizes, task, physics, seed, command, the skills it trained with and ``metadata``."""
+    from parallel_skills import Skill
+
+    skill = Skill.gaussian_mlp(f"{run.task}_new_skill", params.new_skill_params(), env.action_size,
+                               resolved.new_skill.hidden)
+    skill.save(path, obs_size=int(env.observation_size), task=run.task, physics=run.physics, seed=int(run.seed),
+               command=run.command, trained_with=list(run.skills), **metadata)
+
+
 BEST_NEW_SKILL = "best_new_skill.npz"  # the new skill at its best evaluation so far (``RunFiles.policy_params``)
 
 
@@ -288,16 +299,11 @@ class RunFiles:
         success = float(m.get("eval/new_skill_success", float("nan")))
         if not self.primary or self.env is None or not success >= self.best:
             return
-        from parallel_skills import Skill
-
         self.best = success
-        skill = Skill.gaussian_mlp(f"{self.run.task}_new_skill", params.new_skill_params(), self.env.action_size,
-                                   self.resolved.new_skill.hidden)
-        skill.save(os.path.join(self.out, BEST_NEW_SKILL), obs_size=int(self.env.observation_size),
-                   task=self.run.task, physics=self.run.physics, seed=int(self.run.seed), command=self.run.command,
-                   success=success, eval_return=float(m.get("eval/new_skill_return", 0.0)),
-                   env_steps=int(steps), selected="best evaluation so far (eval/new_skill_success, ties: later)",
-                   trained_with=list(self.run.skills))
+        save_new_skill(os.path.join(self.out, BEST_NEW_SKILL), self.run, self.resolved, self.env, params,
+                       success=success, env_steps=int(steps),
+                       eval_return=float(m.get("eval/new_skill_return", 0.0)),
+                       selected="best evaluation so far (eval/new_skill_success, ties: later)")
 
     def checkpoint(self, state, host):
         if not self.primary:  # (orbax writes the host JSON from the primary process only)
@@ -369,15 +375,11 @@ def restore_group(outs, ckpts, runs, env, skills, resolved, mesh=None):
 
 def write_outputs(out, run, resolved, env, skills, make_policy, params, metrics, video: bool, seconds: float):
     """The finished run's new skill (``new_skill.npz``), plots, video and ``export.npz``."""
-    from parallel_skills import Skill
     from training.export import write_export
 
     names, seed, num_timesteps = list(run.skills), int(run.seed), int(run.num_timesteps)
-    skill = Skill.gaussian_mlp(f"{run.task}_new_skill", params.new_skill_params(), env.action_size,
-                               resolved.new_skill.hidden)
-    skill.save(os.path.join(out, "new_skill.npz"), obs_size=int(env.observation_size), task=run.task,
-               physics=run.physics, seed=seed, command=run.command,
-               success=metrics["eval/new_skill_success"], trained_with=names, env_steps=metrics["env_steps"])
+    save_new_skill(os.path.join(out, "new_skill.npz"), run, resolved, env, params,
+                   success=metrics["eval/new_skill_success"], env_steps=metrics["env_steps"])
     print(f"new skill saved: {os.path.join(out, 'new_skill.npz')}  ({metrics['env_steps']:,} env steps, "
           f"{seconds:.0f} s)")
     write_plots(out)
