@@ -343,7 +343,8 @@ class RunConfig:
     episode_length: Optional[int] = None  # env steps per episode; None: the task's
     # The env's reset distribution (tasks.make(..., start_states=)): "table" (the paper's resets) or
     # "mixed" (also one cube on or beside another; kinematic physics) or "TOP_on_BOTTOM" (half the
-    # resets with that cube resting on the other, e.g. "yellow_on_blue"; kinematic).
+    # resets with that cube resting on the other, e.g. "yellow_on_blue"; kinematic) or "after:NAME:K"
+    # (half where library skill NAME leaves the table resets after K steps; kinematic).
     start_states: str = "table"
     # Env steps between checkpoints; None: at evaluations, at most once a minute, and at the end
     # (training.run keeps the latest 2).

@@ -40,10 +40,9 @@ def names() -> list[str]:
 def check_start_states(name: str, physics: str, start_states: str) -> None:
     """ValueError (one line) unless task ``name`` on ``physics`` has the reset distribution
     ``start_states`` (``"table"``: every manipulation backend; the others: kinematic only)."""
-    from tasks.manipulation.kinematic import START_STATES, START_STATES_ALLOWED
+    from tasks.manipulation.kinematic import check_start_states as check_kinematic
 
-    if start_states not in START_STATES:
-        raise ValueError(f"start_states must be one of {START_STATES_ALLOWED}, got {start_states!r}")
+    check_kinematic(start_states)
     if start_states == "table":
         return
     if name in LOCOMOTION_TASKS:

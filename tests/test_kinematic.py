@@ -142,6 +142,50 @@ def test_loose_pair_start_states_are_resting_stacks_off_centre_turned_and_finger
     assert ap[on].min() < 0.2 * L.APERTURE_OPEN and np.all(ap[~on] == L.APERTURE_OPEN)
 
 
+def test_after_skill_start_states_are_where_the_library_skill_leaves_the_table_resets():
+    """start_states="after:stack_yellow_on_blue:K": each reset is its table reset itself, or the state
+    env.step reaches from it in K steps of the library skill's mean action (about half each), with
+    the step counter at 0; after 200 steps yellow rests on blue in nearly all of the second half.
+    Bad specs are one line saying what is allowed."""
+    from tasks.manipulation import rewards as R
+    from tasks.manipulation import skill_starts
+    from training.skill_library import load_skills
+
+    skill = load_skills(["stack_yellow_on_blue"], "kinematic", "library")[0]
+    keys = jax.random.split(jax.random.PRNGKey(4), 64)
+    env = tasks.make("stack", start_states="after:stack_yellow_on_blue:30")
+    start = jax.jit(jax.vmap(env.reset))(keys)
+    assert np.all(np.asarray(start.info["steps"]) == 0)
+    table_env = tasks.make("stack")
+    table = jax.vmap(lambda k: table_env.reset(jax.random.split(k, 3)[0]))(keys)
+
+    def body(st, _):
+        a = jax.vmap(lambda o: jnp.clip(skill.apply(skill.params, o, None), -1, 1))(st.obs)
+        return jax.vmap(table_env.step)(st, a), None
+
+    moved, _ = jax.lax.scan(body, table, None, length=30)
+    same_table = np.all(np.isclose(start.obs, table.obs), axis=-1)
+    same_moved = np.all(np.isclose(start.obs, moved.obs, atol=1e-5), axis=-1)
+    assert np.all(same_table | same_moved) and 0.3 < same_moved.mean() < 0.7, (same_table.mean(), same_moved.mean())
+
+    s = jax.jit(jax.vmap(tasks.make("stack", start_states="after:stack_yellow_on_blue:150-250").reset))(
+        jax.random.split(jax.random.PRNGKey(5), 128)).pipeline_state
+    p = np.asarray(s.cube_pos)
+    y, b = L.CUBE_INDEX["yellow"], L.CUBE_INDEX["blue"]
+    on = np.asarray(R.stack_sparse(p[:, y], p[:, b], np.zeros(len(p)))) > 0
+    on_floor = np.all(np.isclose(p[..., 2], L.CUBE_HALF), axis=-1)
+    assert 0.35 < on.mean() < 0.65 and np.mean(on | on_floor) > 0.95, (on.mean(), on_floor.mean())
+    assert not np.any(jax.vmap(K.cubes_interpenetrate)(s))
+    for bad, says in [("after:nope:10", "no skill 'nope' in the kinematic library; valid: "),
+                      ("after:stack_yellow_on_blue", "is not after:NAME:K or after:NAME:KMIN-KMAX"),
+                      ("after:stack_yellow_on_blue:20-10", "1 ≤ KMIN ≤ KMAX ≤ 1000")]:
+        with pytest.raises(ValueError, match=says):
+            tasks.make("stack", start_states=bad)
+    with pytest.raises(ValueError, match="kinematic physics only"):
+        tasks.check_start_states("stack", "mujoco", "after:stack_yellow_on_blue:10")
+    assert skill_starts.parse("after:stack_yellow_on_blue:10") == skill_starts.AfterSkill("stack_yellow_on_blue", 10, 10)
+
+
 # Each scripted controller on its own task over 64 random initial states (issue #2 thresholds).
 CONTROLLERS = [
     ("reach_green", "reach_green", 0.9), ("reach_yellow", "reach_yellow", 0.9), ("reach_blue", "reach_blue", 0.9),

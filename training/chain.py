@@ -65,7 +65,7 @@ def build_parser():
     p.add_argument("--start_states", default="table",
                    help="every stage's reset distribution (training.run --start_states): table (the paper's) or "
                         "mixed (kinematic; also one cube on or beside another) or TOP_on_BOTTOM (kinematic; half with "
-                        "that cube on the other, e.g. yellow_on_blue); each skill is published with its "
+                        "that cube on the other, e.g. yellow_on_blue; _loose: as a learnt skill leaves it) or after:NAME:K (kinematic; half where library skill NAME leaves the table resets after K or KMIN-KMAX steps); each skill is published with its "
                         "success on the paper's resets, and on these")
     p.add_argument("--config", default=None, help="JSON file of TrainConfig fields, passed to every stage")
     p.add_argument("--eval_episodes", type=positive_int, default=64,

@@ -284,7 +284,7 @@ def main(argv=None):
     p.add_argument("--episode_length", type=positive_int, default=None)
     p.add_argument("--start_states", default="table",
                    help="the env's reset distribution: table (the paper's) or mixed (also one cube on or beside "
-                        "another; kinematic physics) or TOP_on_BOTTOM (kinematic; half with that cube on the other)")
+                        "another; kinematic physics) or TOP_on_BOTTOM (kinematic; half with that cube on the other) or after:NAME:K (kinematic; half where library skill NAME leaves the table resets after K steps)")
     p.add_argument("--seed", type=nonnegative_int, default=0)
     p.add_argument("--actions", default="mean",
                    help=f"one of {', '.join(ACTIONS)}: a Gaussian-MLP policy's mean action or actions sampled from "

@@ -71,7 +71,7 @@ def build_parser():
     p.add_argument("--start_states", default="table",
                    help="reset distribution of every stage: table (the paper's) or mixed (kinematic; also one cube "
                         "on or beside another) or TOP_on_BOTTOM (kinematic; half with that cube on the other, e.g. "
-                        "yellow_on_blue)")
+                        "yellow_on_blue) or after:NAME:K (kinematic; half where library skill NAME leaves the table resets after K steps)")
     p.add_argument("--bc_envs", type=positive_int, default=512, help="envs collecting cloning data (default 512)")
     p.add_argument("--bc_steps", type=positive_int, default=200, help="steps per env of cloning data (default 200)")
     p.add_argument("--bc_noise", type=_nonnegative_float, default=0.3,

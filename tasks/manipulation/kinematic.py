@@ -34,6 +34,7 @@ from flax import struct
 from tasks.manipulation import geometry as G
 from tasks.manipulation import layout as L
 from tasks.manipulation.env_base import ManipulationEnv
+from tasks.manipulation import skill_starts
 from tasks.manipulation import task_defs
 
 EPS = 1e-4  # penetration tolerance of the overlap tests (m)
@@ -326,8 +327,18 @@ for _name in list(PAIR_START_STATES):
     START_STATES[_name + "_loose"] = (f"as {_name}, {_t}'s centre within 14 mm of {_b}'s (each axis), "
                                       f"turned by up to π/4, the fingers anywhere from closed to open")
 START_STATES_ALLOWED = ("table, mixed, or TOP_on_BOTTOM of two of green, yellow, blue (e.g. yellow_on_blue), "
-                        "or that with _loose (e.g. yellow_on_blue_loose)")
+                        "or that with _loose (e.g. yellow_on_blue_loose), or after:NAME:K / after:NAME:KMIN-KMAX "
+                        "(where library skill NAME leaves the table resets: tasks/manipulation/skill_starts.py)")
 PAIR_TRIES = 8  # table resets tried for a pair's placement
+
+
+def check_start_states(start_states: str) -> None:
+    """ValueError (one line) unless ``start_states`` is a key of ``START_STATES`` or a valid
+    ``after:NAME:K`` (``skill_starts.parse``)."""
+    if skill_starts.is_after(start_states):
+        skill_starts.parse(start_states)
+    elif start_states not in START_STATES:
+        raise ValueError(f"start_states must be one of {START_STATES_ALLOWED}, got {start_states!r}")
 ARRANGE_TABLE, ARRANGE_STACKED, ARRANGE_ADJACENT = 0, 1, 2
 ADJACENT_GAP = (0.001, 0.008)  # m between the touching faces of an adjacent pair
 STACKED_OFFSET = 0.005  # m, the top cube's centre within this of the bottom's (each axis)
@@ -422,15 +433,22 @@ class KinematicBlocks(ManipulationEnv):
     def __init__(self, task: str, episode_length: int = L.DEFAULT_EPISODE_LENGTH, start_states: str = "table"):
         if int(episode_length) < 1:
             raise ValueError(f"episode_length must be a positive integer, got {episode_length}")
-        if start_states not in START_STATES:
-            raise ValueError(f"start_states must be one of {START_STATES_ALLOWED}, got {start_states!r}")
+        check_start_states(start_states)
         self.task = task_defs.get(task)
         self.task_name = task
         self.episode_length = int(episode_length)
         self.start_states = start_states
+        self._after = None  # (spec, act): the "after:NAME:K" resets
+        if skill_starts.is_after(start_states):
+            spec = skill_starts.parse(start_states)
+            self._after = (spec, skill_starts.load_policy(spec, L.OBS_SIZE, L.ACTION_SIZE))
 
     def reset(self, rng: jax.Array) -> State:
-        s = sample_start_state(rng, self.start_states)
+        if self._after is None:
+            s = sample_start_state(rng, self.start_states)
+        else:
+            spec, act = self._after
+            s = skill_starts.sample(rng, spec, act, sample_initial_state, dynamics, observe)
         reward, success = self._reward(s)
         zero = jnp.zeros(())
         return State(

@@ -377,7 +377,8 @@ def main(argv=None):
     p.add_argument("--steps", type=positive_int, default=None, help="episode length (default: the env's)")
     p.add_argument("--start_states", default="table",
                    help="the env's reset distribution: table (the paper's) or mixed (kinematic; also one cube on "
-                        "or beside another) or TOP_on_BOTTOM (kinematic; half with that cube on the other)")
+                        "or beside another) or TOP_on_BOTTOM (kinematic; half with that cube on the other) or after:NAME:K "
+                        "(kinematic; half where library skill NAME leaves the table resets after K steps)")
     p.add_argument("--new_skill", default=None,
                    help="a trained new skill (a training.run directory or its new_skill.npz), step name 'new'")
     p.add_argument("--new_skill_actions", default="mean", choices=NEW_SKILL_ACTIONS,

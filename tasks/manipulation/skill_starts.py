@@ -1,0 +1,102 @@
+"""Start states a learnt skill leaves: ``start_states="after:NAME:K"`` (kinematic).
+
+A chain's later skill starts where an earlier one ends: ``stack_green_on_yellow`` after the neural
+``stack_yellow_on_blue``, with yellow a little off blue's centre, turned, perhaps still held, and the
+gripper right beside it. The ``TOP_on_BOTTOM_loose`` resets draw an imitation of that state; these
+draw the state itself. Half the resets are the paper's table resets; the other half run the shipped
+library skill NAME (``checkpoints/kinematic/NAME.npz``, its mean action, no noise: as
+``training.experiments.schedules`` runs a frozen skill) for K env steps from a table reset, and the
+episode starts there (its step counter at 0). ``K`` is one integer or a range ``KMIN-KMAX``, drawn
+uniformly per reset.
+
+The skill file is read when the env is built; a run records the string, so a resume rebuilds the
+same distribution as long as the library skill is the same.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import re
+
+import jax
+import jax.numpy as jnp
+
+PREFIX = "after:"
+FORM = "after:NAME:K or after:NAME:KMIN-KMAX (NAME a skill of the kinematic library, 1 ≤ KMIN ≤ KMAX ≤ 1000)"
+MAX_STEPS = 1000
+_SPEC = re.compile(r"^after:([A-Za-z0-9_.]+):(\d+)(?:-(\d+))?$")
+
+
+@dataclasses.dataclass(frozen=True)
+class AfterSkill:
+    """``after:NAME:KMIN-KMAX``, parsed: library skill ``skill`` run for ``kmin``..``kmax`` env steps."""
+
+    skill: str
+    kmin: int
+    kmax: int
+
+
+def is_after(start_states: str) -> bool:
+    return isinstance(start_states, str) and start_states.startswith(PREFIX)
+
+
+def library_file(name: str) -> str:
+    """``checkpoints/kinematic/<name>.npz`` of the installed library."""
+    import checkpoints
+
+    return os.path.join(checkpoints.library_root(), "kinematic", f"{name}.npz")
+
+
+def parse(start_states: str) -> AfterSkill:
+    """``after:NAME:K`` / ``after:NAME:KMIN-KMAX`` -> ``AfterSkill``; ValueError (one line) saying what is
+    wrong and what is allowed, including a NAME the kinematic library does not have."""
+    m = _SPEC.match(start_states)
+    if m is None:
+        raise ValueError(f"start_states {start_states!r} is not {FORM}")
+    name, kmin = m[1], int(m[2])
+    kmax = kmin if m[3] is None else int(m[3])
+    if not 1 <= kmin <= kmax <= MAX_STEPS:
+        raise ValueError(f"start_states {start_states!r}: the steps must satisfy 1 ≤ KMIN ≤ KMAX ≤ {MAX_STEPS}")
+    path = library_file(name)
+    if not (os.path.isfile(path) and os.path.isfile(path[:-4] + ".json")):
+        have = sorted(f[:-4] for f in os.listdir(os.path.dirname(path)) if f.endswith(".npz"))
+        raise ValueError(f"start_states {start_states!r}: no skill {name!r} in the kinematic library; "
+                         f"valid: {', '.join(have)}")
+    return AfterSkill(name, kmin, kmax)
+
+
+def load_policy(spec: AfterSkill, obs_size: int, action_size: int):
+    """``act(obs [O]) -> action [A]``: the library skill's mean action, clipped to [-1, 1]."""
+    from parallel_skills.skills import Skill
+
+    skill = Skill.load(library_file(spec.skill), obs_size=obs_size, action_size=action_size)
+    key = jax.random.PRNGKey(0)  # the mean action does not use it
+
+    def act(obs):
+        return jnp.clip(skill.apply(skill.params, obs, key), -1.0, 1.0)
+
+    return act
+
+
+def run_skill(s0, act, dynamics, observe, steps: jax.Array, max_steps: int):
+    """The state ``act`` reaches from ``s0`` in ``steps`` (≤ ``max_steps``) env steps of ``dynamics``:
+    one ``lax.scan`` of ``max_steps`` steps whose later ones leave the state as it is."""
+
+    def body(s, t):
+        nxt = dynamics(s, act(observe(s)))
+        return jax.tree_util.tree_map(lambda a, b: jnp.where(t < steps, a, b), nxt, s), None
+
+    s, _ = jax.lax.scan(body, s0, jnp.arange(max_steps))
+    return s
+
+
+def sample(rng: jax.Array, spec: AfterSkill, act, table_reset, dynamics, observe):
+    """One reset: with probability 1/2 ``table_reset(k)`` itself, else the state the skill reaches
+    from it in K ~ U{kmin..kmax} env steps."""
+    k_table, k_len, k_use = jax.random.split(rng, 3)
+    s0 = table_reset(k_table)
+    steps = jax.random.randint(k_len, (), spec.kmin, spec.kmax + 1)
+    after = run_skill(s0, act, dynamics, observe, steps, spec.kmax)
+    use = jax.random.bernoulli(k_use)
+    return jax.tree_util.tree_map(lambda a, b: jnp.where(use, a, b), after, s0)
