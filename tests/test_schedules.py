@@ -170,6 +170,15 @@ def test_new_skill_sampled_actions_draw_from_its_gaussian(tmp_path):
                                atol=1e-6)
     zero = S.load_new_skill(str(tmp_path), env, "sampled", std_scale=0.0)
     np.testing.assert_allclose(zero.apply(zero.params, obs, k1), jnp.clip(mean, -1.0, 1.0), atol=1e-6)
+    # Beside a skill of the same network acting with its mean (a library skill), the sampled one
+    # still samples: SkillSet stacks only skills of equal arch, which the two no longer share.
+    from parallel_skills.skills import SkillSet
+
+    both = SkillSet([mean_skill, sampled])
+    assert both.vmapped_groups == []
+    acts = both.frozen_actions(jnp.stack([obs, obs]), k1)
+    assert np.allclose(acts[0, 0], jnp.clip(mean, -1.0, 1.0), atol=1e-6) and not np.allclose(acts[1, 0], acts[0, 0])
+    assert SkillSet([mean_skill, S.load_new_skill(str(tmp_path), env, "mean")]).vmapped_groups == [[0, 1]]
     with pytest.raises(UsageError, match="--new_skill_actions"):
         S.load_new_skill(str(tmp_path), env, "greedy")
 

@@ -321,9 +321,12 @@ def load_new_skill(path, env, actions: str = "mean", std_scale: float = 1.0):
         from parallel_skills.skills import gaussian_mlp_apply
 
         min_std = new_skill_min_std(os.path.dirname(os.path.abspath(file)))
+        # Its own arch: SkillSet stacks skills of equal arch under one apply, and a library skill of
+        # the same network (acting with its mean) must not take this one's sampling away.
         skill = dataclasses.replace(skill, apply=gaussian_mlp_apply(skill.metadata["action_size"], skill.metadata["hidden"],
                                                                     sampled=True, min_std=min_std,
-                                                                    std_scale=std_scale))
+                                                                    std_scale=std_scale),
+                                    arch=f"{skill.arch} sampled(min_std={min_std}, std_scale={std_scale})")
     return skill
 
 
