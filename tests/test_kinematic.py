@@ -143,30 +143,39 @@ def test_loose_pair_start_states_are_resting_stacks_off_centre_turned_and_finger
 
 
 def test_after_skill_start_states_are_where_the_library_skill_leaves_the_table_resets():
-    """start_states="after:stack_yellow_on_blue:K": each reset is its table reset itself, or the state
-    env.step reaches from it in K steps of the library skill's mean action (about half each), with
-    the step counter at 0; after 200 steps yellow rests on blue in nearly all of the second half.
-    Bad specs are one line saying what is allowed."""
+    """start_states="after:stack_yellow_on_blue:K": the pool's states are where env.step takes table
+    resets in K steps of the library skill's mean action; each reset is its table reset itself or a
+    pool state (about half each), with the step counter at 0; after 150-250 steps yellow rests on
+    blue in nearly all of the second half. Bad specs are one line saying what is allowed."""
     from tasks.manipulation import rewards as R
     from tasks.manipulation import skill_starts
     from training.skill_library import load_skills
 
     skill = load_skills(["stack_yellow_on_blue"], "kinematic", "library")[0]
-    keys = jax.random.split(jax.random.PRNGKey(4), 64)
-    env = tasks.make("stack", start_states="after:stack_yellow_on_blue:30")
-    start = jax.jit(jax.vmap(env.reset))(keys)
-    assert np.all(np.asarray(start.info["steps"]) == 0)
+    spec = skill_starts.parse("after:stack_yellow_on_blue:30")
+    act = skill_starts.load_policy(spec, L.OBS_SIZE, L.ACTION_SIZE)
+    pool = skill_starts.build_pool(spec, act, K.sample_initial_state, K.dynamics, K.observe, size=16, seed=3)
     table_env = tasks.make("stack")
-    table = jax.vmap(lambda k: table_env.reset(jax.random.split(k, 3)[0]))(keys)
+    table = jax.vmap(table_env.reset)(jax.random.split(jax.random.PRNGKey(3), 16))
 
     def body(st, _):
         a = jax.vmap(lambda o: jnp.clip(skill.apply(skill.params, o, None), -1, 1))(st.obs)
         return jax.vmap(table_env.step)(st, a), None
 
     moved, _ = jax.lax.scan(body, table, None, length=30)
+    np.testing.assert_allclose(jax.vmap(K.observe)(pool), moved.obs, atol=1e-5)
+    assert not np.allclose(moved.obs, table.obs)
+
+    env = tasks.make("stack", start_states="after:stack_yellow_on_blue:30")
+    assert jax.tree.leaves(env.after_pool)[0].shape[0] == skill_starts.POOL_SIZE
+    keys = jax.random.split(jax.random.PRNGKey(4), 64)
+    start = jax.jit(jax.vmap(env.reset))(keys)
+    assert np.all(np.asarray(start.info["steps"]) == 0)
+    table = jax.vmap(lambda k: table_env.reset(jax.random.split(k, 3)[0]))(keys)
+    pool_obs = np.asarray(jax.vmap(K.observe)(env.after_pool))
     same_table = np.all(np.isclose(start.obs, table.obs), axis=-1)
-    same_moved = np.all(np.isclose(start.obs, moved.obs, atol=1e-5), axis=-1)
-    assert np.all(same_table | same_moved) and 0.3 < same_moved.mean() < 0.7, (same_table.mean(), same_moved.mean())
+    from_pool = np.any(np.all(np.isclose(np.asarray(start.obs)[:, None], pool_obs[None], atol=1e-6), axis=-1), axis=1)
+    assert np.all(same_table | from_pool) and 0.3 < from_pool.mean() < 0.7, (same_table.mean(), from_pool.mean())
 
     s = jax.jit(jax.vmap(tasks.make("stack", start_states="after:stack_yellow_on_blue:150-250").reset))(
         jax.random.split(jax.random.PRNGKey(5), 128)).pipeline_state

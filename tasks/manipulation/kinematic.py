@@ -438,17 +438,17 @@ class KinematicBlocks(ManipulationEnv):
         self.task_name = task
         self.episode_length = int(episode_length)
         self.start_states = start_states
-        self._after = None  # (spec, act): the "after:NAME:K" resets
+        self.after_pool = None  # the "after:NAME:K" resets' pool (skill_starts)
         if skill_starts.is_after(start_states):
             spec = skill_starts.parse(start_states)
-            self._after = (spec, skill_starts.load_policy(spec, L.OBS_SIZE, L.ACTION_SIZE))
+            act = skill_starts.load_policy(spec, L.OBS_SIZE, L.ACTION_SIZE)
+            self.after_pool = skill_starts.build_pool(spec, act, sample_initial_state, dynamics, observe)
 
     def reset(self, rng: jax.Array) -> State:
-        if self._after is None:
+        if self.after_pool is None:
             s = sample_start_state(rng, self.start_states)
         else:
-            spec, act = self._after
-            s = skill_starts.sample(rng, spec, act, sample_initial_state, dynamics, observe)
+            s = skill_starts.sample(rng, self.after_pool, sample_initial_state)
         reward, success = self._reward(s)
         zero = jnp.zeros(())
         return State(

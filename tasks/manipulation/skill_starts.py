@@ -3,14 +3,17 @@
 A chain's later skill starts where an earlier one ends: ``stack_green_on_yellow`` after the neural
 ``stack_yellow_on_blue``, with yellow a little off blue's centre, turned, perhaps still held, and the
 gripper right beside it. The ``TOP_on_BOTTOM_loose`` resets draw an imitation of that state; these
-draw the state itself. Half the resets are the paper's table resets; the other half run the shipped
-library skill NAME (``checkpoints/kinematic/NAME.npz``, its mean action, no noise: as
-``training.experiments.schedules`` runs a frozen skill) for K env steps from a table reset, and the
-episode starts there (its step counter at 0). ``K`` is one integer or a range ``KMIN-KMAX``, drawn
-uniformly per reset.
+draw the state itself. Half the resets are the paper's table resets; the other half are states of
+a pool: ``POOL_SIZE`` table resets, each run for K env steps (``K`` one integer or a range
+``KMIN-KMAX``, drawn per pool state) by the shipped library skill NAME
+(``checkpoints/kinematic/NAME.npz``, its mean action, no noise: as ``training.experiments.schedules``
+runs a frozen skill); the episode starts there, its step counter at 0.
 
-The skill file is read when the env is built; a run records the string, so a resume rebuilds the
-same distribution as long as the library skill is the same.
+The pool is rolled out once, when the env is built (from ``POOL_SEED``: the same pool in every
+process), so a reset costs what a table reset costs. It must: under ``vmap`` (``training.run
+--seeds``) the trainer's auto-reset ``lax.cond`` runs its reset branch at every step, and a
+rollout inside the reset would run with it (7x the reset's cost per step at 2 x 32 envs). A run
+records the string, so a resume rebuilds the same pool as long as the library skill is the same.
 """
 
 from __future__ import annotations
@@ -25,6 +28,8 @@ import jax.numpy as jnp
 PREFIX = "after:"
 FORM = "after:NAME:K or after:NAME:KMIN-KMAX (NAME a skill of the kinematic library, 1 ≤ KMIN ≤ KMAX ≤ 1000)"
 MAX_STEPS = 1000
+POOL_SIZE = 4096  # states rolled out once per env
+POOL_SEED = 0
 _SPEC = re.compile(r"^after:([A-Za-z0-9_.]+):(\d+)(?:-(\d+))?$")
 
 
@@ -91,12 +96,25 @@ def run_skill(s0, act, dynamics, observe, steps: jax.Array, max_steps: int):
     return s
 
 
-def sample(rng: jax.Array, spec: AfterSkill, act, table_reset, dynamics, observe):
-    """One reset: with probability 1/2 ``table_reset(k)`` itself, else the state the skill reaches
-    from it in K ~ U{kmin..kmax} env steps."""
-    k_table, k_len, k_use = jax.random.split(rng, 3)
+def build_pool(spec: AfterSkill, act, table_reset, dynamics, observe, size: int = None, seed: int = None):
+    """The pool: state i is ``table_reset(k_i)`` run for K_i ~ U{kmin..kmax} env steps of ``act``,
+    k_i the i-th of ``size`` keys split from ``PRNGKey(seed)`` and K_i drawn with
+    ``fold_in(k_i, 1)``. A pytree of the state with a leading axis [size]."""
+    size = POOL_SIZE if size is None else int(size)
+    seed = POOL_SEED if seed is None else int(seed)
+
+    def one(k):
+        steps = jax.random.randint(jax.random.fold_in(k, 1), (), spec.kmin, spec.kmax + 1)
+        return run_skill(table_reset(k), act, dynamics, observe, steps, spec.kmax)
+
+    return jax.jit(jax.vmap(one))(jax.random.split(jax.random.PRNGKey(seed), size))
+
+
+def sample(rng: jax.Array, pool, table_reset):
+    """One reset: with probability 1/2 ``table_reset(k)`` itself, else a pool state drawn uniformly."""
+    k_table, k_pick, k_use = jax.random.split(rng, 3)
     s0 = table_reset(k_table)
-    steps = jax.random.randint(k_len, (), spec.kmin, spec.kmax + 1)
-    after = run_skill(s0, act, dynamics, observe, steps, spec.kmax)
+    size = jax.tree_util.tree_leaves(pool)[0].shape[0]
+    after = jax.tree_util.tree_map(lambda x: x[jax.random.randint(k_pick, (), 0, size)], pool)
     use = jax.random.bernoulli(k_use)
     return jax.tree_util.tree_map(lambda a, b: jnp.where(use, a, b), after, s0)
