@@ -9,7 +9,8 @@ Model (one agent step, dt = 0.05 s):
      within ``GRASP_TOL_YAW``) grasps it on the step a pad would reach it: the pads stop at the
      cube's width and the cube is centred and aligned between them (if that does not push it into
      another cube). Any other finger motion that would make a pad penetrate a cube is blocked.
-     Opening past the cube's width releases a held cube, which settles (see 3).
+     Opening past the cube's width releases a held cube, which settles (see 3), unless it would
+     settle into the gripper (a pad holds it back: the fingers stay at its width).
   2. The pinch moves by the commanded Cartesian velocity and the wrist turns by the yaw rate,
      carrying a held cube. A move that would make a finger pad, the palm or the held cube
      penetrate a cube (or the held cube the floor) is replaced by its horizontal-only part, else
@@ -194,10 +195,13 @@ def dynamics(s: KinematicState, action: jax.Array) -> KinematicState:
     # 1. Fingers.
     ap_cmd = jnp.clip(s.aperture + action[4] * L.MAX_FINGER_SPEED * dt, L.APERTURE_CLOSED, L.APERTURE_OPEN)
     closing = ap_cmd < s.aperture
-    # Opening the pads releases the held cube, unless they would open into another cube.
+    # Opening the pads releases the held cube, unless they would open into another cube, or the
+    # cube would settle into the gripper (a cube sliding off its supports is held back by a pad).
     held_mask = (jnp.arange(L.NUM_CUBES) == s.held) & holding
+    settled = settle(idx, s.cube_pos, s.cube_yaw)
     release = holding & (ap_cmd > L.CUBE_SIZE + 1e-6) & ~gripper_hits_cubes(
-        s.pinch, s.yaw, ap_cmd, s.cube_pos, cube_cs, held_mask)
+        s.pinch, s.yaw, ap_cmd, s.cube_pos, cube_cs, held_mask) & ~gripper_hits_cubes(
+        s.pinch, s.yaw, ap_cmd, settled, cube_cs, jnp.zeros(L.NUM_CUBES, bool))
     # Grasp candidates: cubes centred and aligned between the pads.
     rel_all = _pinch_frame(s.pinch, s.yaw, s.cube_pos)  # [3, 3]
     misalign = G.wrap_quarter(s.cube_yaw - s.yaw)
@@ -236,8 +240,8 @@ def dynamics(s: KinematicState, action: jax.Array) -> KinematicState:
         L.CUBE_SIZE,
         jnp.where(release | ~free_ap_blocked, ap_cmd, s.aperture),
     )
-    # A release drops the cube before the gripper moves on.
-    cube_pos = jnp.where(release, settle(idx, cube_pos, cube_yaw), cube_pos)
+    # A release drops the cube before the gripper moves on (no grasp this step: cube_pos is s.cube_pos).
+    cube_pos = jnp.where(release, settled, cube_pos)
 
     # 2. Gripper translation and yaw, carrying the held cube.
     dp = action[:3] * L.MAX_LINEAR_SPEED * dt
