@@ -197,10 +197,10 @@ def dynamics(s: KinematicState, action: jax.Array) -> KinematicState:
     closing = ap_cmd < s.aperture
     # Opening the pads releases the held cube, unless they would open into another cube, or the
     # cube would settle into the gripper (a cube sliding off its supports is held back by a pad).
-    held_mask = (jnp.arange(L.NUM_CUBES) == s.held) & holding
+    # ``settled`` moves the held cube alone, so one test covers both: the open pads against the
+    # other cubes where they are and the held one where it would come to rest.
     settled = settle(idx, s.cube_pos, s.cube_yaw)
     release = holding & (ap_cmd > L.CUBE_SIZE + 1e-6) & ~gripper_hits_cubes(
-        s.pinch, s.yaw, ap_cmd, s.cube_pos, cube_cs, held_mask) & ~gripper_hits_cubes(
         s.pinch, s.yaw, ap_cmd, settled, cube_cs, jnp.zeros(L.NUM_CUBES, bool))
     # Grasp candidates: cubes centred and aligned between the pads.
     rel_all = _pinch_frame(s.pinch, s.yaw, s.cube_pos)  # [3, 3]
@@ -334,6 +334,11 @@ START_STATES_ALLOWED = ("table, mixed, or TOP_on_BOTTOM of two of green, yellow,
                         "or that with _loose (e.g. yellow_on_blue_loose), or after:NAME:K / after:NAME:KMIN-KMAX "
                         "(where library skill NAME leaves the table resets: tasks/manipulation/skill_starts.py)")
 PAIR_TRIES = 8  # table resets tried for a pair's placement
+ARRANGE_TABLE, ARRANGE_STACKED, ARRANGE_ADJACENT = 0, 1, 2
+ADJACENT_GAP = (0.001, 0.008)  # m between the touching faces of an adjacent pair
+STACKED_OFFSET = 0.005  # m, the top cube's centre within this of the bottom's (each axis)
+LOOSE_OFFSET = 0.014  # m, the same for the "_loose" pairs (≤ 19.8 mm off: over the bottom cube in any yaw)
+LOOSE_YAW = float(jnp.pi / 4)  # rad, the "_loose" top cube turned by up to this (faces repeat every π/2)
 
 
 def check_start_states(start_states: str) -> None:
@@ -343,11 +348,6 @@ def check_start_states(start_states: str) -> None:
         skill_starts.parse(start_states)
     elif start_states not in START_STATES:
         raise ValueError(f"start_states must be one of {START_STATES_ALLOWED}, got {start_states!r}")
-ARRANGE_TABLE, ARRANGE_STACKED, ARRANGE_ADJACENT = 0, 1, 2
-ADJACENT_GAP = (0.001, 0.008)  # m between the touching faces of an adjacent pair
-STACKED_OFFSET = 0.005  # m, the top cube's centre within this of the bottom's (each axis)
-LOOSE_OFFSET = 0.014  # m, the same for the "_loose" pairs (≤ 19.8 mm off: over the bottom cube in any yaw)
-LOOSE_YAW = float(jnp.pi / 4)  # rad, the "_loose" top cube turned by up to this (faces repeat every π/2)
 
 
 PAIRS = jnp.array([(a, b) for a in range(L.NUM_CUBES) for b in range(L.NUM_CUBES) if a != b])  # (top, bottom)
@@ -444,7 +444,7 @@ class KinematicBlocks(ManipulationEnv):
         self.start_states = start_states
         self.after_pool = None  # the "after:NAME:K" resets' pool (skill_starts)
         if skill_starts.is_after(start_states):
-            spec = skill_starts.parse(start_states)
+            spec = skill_starts.parse(start_states)  # (checked above: the spec and the skill file)
             act = skill_starts.load_policy(spec, L.OBS_SIZE, L.ACTION_SIZE)
             self.after_pool = skill_starts.build_pool(spec, act, sample_initial_state, dynamics, observe)
 
