@@ -232,6 +232,13 @@ class NewSkillConfig:
     # 0: pure CRR (the paper's).
     dpg_weight: float = 0.0
     num_action_samples: int = 4  # J: samples for the CRR baseline and the TD target.
+    # The action at s' in the critic's TD target: "sampled" (the paper's CRR: the mean of Q' over J
+    # actions of the target policy, so Q values the Gaussian as it acts) or "mean" (beyond the paper:
+    # Q'(s', μ'(s')), so Q values the deterministic read-out, the policy the new skill is evaluated
+    # and deployed as). With "sampled", a state where the mean dwells (holding a cube over its
+    # target) is valued as the sampled policy that leaves it on its noise, so dwelling costs only
+    # discount and CRR's weights cannot single out the one leaving step (docs/skills.md).
+    td_target_action: str = "sampled"
     # 0: the new skill samples its batches from the whole buffer (the paper's). N > 0 (beyond the
     # paper): from the N rows inserted last (at most the buffer's), while the scheduler keeps the
     # whole buffer. CRR's mean settles at the weighted average of the actions its batches hold, a
@@ -280,6 +287,7 @@ class NewSkillConfig:
         check_fields(self)
         check_choice("crr_mode", self.crr_mode, ("exp", "indicator"), "'exp' or 'indicator'")
         check_choice("crr_advantage", self.crr_advantage, ("mean", "max"), "'mean' or 'max'")
+        check_choice("td_target_action", self.td_target_action, ("sampled", "mean"), "'sampled' or 'mean'")
         check_choice("baseline", self.baseline, BASELINES, f"one of {', '.join(BASELINES)}")
         if self.dpg_weight < 0.0:
             raise FieldError("dpg_weight", "a non-negative number (0: pure CRR)", self.dpg_weight)

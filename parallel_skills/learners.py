@@ -14,7 +14,7 @@ Scheduler (HCMPO, paper Eq. 3-4):
   * M-step: cross-entropy of the *online* policy to the E-step weights + KL(π_old ‖ π).
 New skill (CRR, Wang et al. 2020):
   * TD target: a'_j ~ *target* policy at s' (J = num_action_samples, clipped), *target*
-    critic, mean over j.
+    critic, mean over j; or the target policy's mean action alone (``td_target_action`` "mean").
   * Advantage: *online* critic (stop-gradient), baseline actions a_j ~ *online* policy at s.
   * Optional baseline mix (mpo_alpha < 1, paper App. B): actions ~ *target* policy at s
     (π_old; for kl_reg the skills' mixture π₀), Q from the *online* critic (stop-gradient);
@@ -460,7 +460,7 @@ class SkillMixture(NamedTuple):
 class NewSkillTargets(NamedTuple):
     """From the target networks (no gradient)."""
 
-    y: jax.Array  # [B] TD target r + γ·d·mean_j min_e Q'_e(s', a'_j), a'_j ~ π_target(.|s')
+    y: jax.Array  # [B] TD target r + γ·d·mean_j min_e Q'_e(s', a'_j), a'_j ~ π_target(.|s') (or a' = μ_target(s'))
     mpo_mean: jax.Array  # [B, A] π_old = target policy at s (MPO mix only, else [0])
     mpo_std: jax.Array  # [B, A]
     mpo_actions: jax.Array  # [B, n_mpo, A] samples of π_old, or of π₀ for kl_reg (MPO mix only)
@@ -494,9 +494,12 @@ def new_skill_targets(state: LearnerState, batch: Transition, networks, key_next
     with the MPO mix, samples of π_old = the target policy at s (of the skills' mixture π₀ for
     the kl_reg baseline: the prior is the proposal)."""
     policy, critic = networks
-    j = config.num_action_samples
     t_mean_next, t_std_next = policy.apply(state.target_policy_params, batch.next_obs)
-    a_next = sample_n(t_mean_next, t_std_next, j, key_next)
+    if config.td_target_action == "mean":  # Q'(s', μ'(s')): the deterministic read-out's value
+        j, a_next = 1, t_mean_next[:, None]
+    else:  # the paper's CRR: a'_j ~ π'(.|s')
+        j = config.num_action_samples
+        a_next = sample_n(t_mean_next, t_std_next, j, key_next)
     q_next = jnp.min(critic_values(critic, state.target_critic_params, tile_obs(batch.next_obs, j), a_next),
                      axis=-1)  # [B, J]
     y = td_target(batch.reward, batch.discount, q_next, config.discount)

@@ -185,6 +185,29 @@ def test_new_skill_td_target_is_the_minimum_over_critics():
     assert np.abs(q).max() < 2.0, q  # both near 0.5·Q'_0 (small), far from 25 or 50
 
 
+def test_new_skill_td_target_with_the_mean_action_values_the_read_out():
+    """td_target_action "mean": y = r + γ·d·Q'(s', μ'(s')) exactly (the deterministic read-out's
+    value); "sampled" (the paper's) averages Q' over actions drawn around μ', a different target."""
+    from parallel_skills.learners import critic_values, new_skill_networks, new_skill_targets
+
+    batch = _new_skill_batch(jax.random.PRNGKey(1))
+    ys = {}
+    for mode in ("sampled", "mean"):
+        cfg = NewSkillConfig(hidden=(32, 32), discount=0.9, td_target_action=mode)
+        state = new_skill_learner_init(jax.random.PRNGKey(0), O, A, cfg)
+        networks = new_skill_networks(A, cfg)
+        ys[mode] = np.asarray(new_skill_targets(state, batch, networks, jax.random.PRNGKey(3),
+                                                jax.random.PRNGKey(4), cfg).y)
+    policy, critic = networks
+    mu_next, _ = policy.apply(state.target_policy_params, batch.next_obs)
+    q_mu = np.asarray(critic_values(critic, state.target_critic_params, batch.next_obs, mu_next))[:, 0]
+    expected = np.asarray(batch.reward) + 0.9 * np.asarray(batch.discount) * q_mu
+    np.testing.assert_allclose(ys["mean"], expected, rtol=1e-5, atol=1e-6)
+    assert np.abs(ys["sampled"] - ys["mean"]).max() > 1e-4
+    with pytest.raises(ValueError, match="td_target_action"):
+        NewSkillConfig(td_target_action="greedy")
+
+
 def test_one_critic_keeps_the_single_critic_layout():
     """num_critics=1 (the default) is the pre-ensemble learner (same parameter tree), so older runs
     resume; their config.json, which lacks the field, reads as one critic."""
