@@ -281,6 +281,28 @@ def test_a_cube_that_would_slide_into_the_gripper_is_not_released():
     assert int(opened.held) == -1 and float(opened.cube_pos[1, 2]) == pytest.approx(L.CUBE_HALF)
 
 
+def test_no_grasp_when_the_closing_pads_would_enter_another_cube():
+    """Yellow between the pads, a corner of blue (turned against the gripper) poking in beside it:
+    closing on yellow would push a pad into blue (the property test's draw 41). No grasp; the pads
+    stay where they were and nothing overlaps the gripper."""
+    s = K.KinematicState(
+        pinch=jnp.array([-0.06926034390926361, -0.04481886327266693, 0.028779620304703712]),
+        yaw=jnp.asarray(-1.1042683124542236), aperture=jnp.asarray(0.053898174315690994), vel=jnp.zeros(5),
+        cube_pos=jnp.array([[0.01513187400996685, -0.05653867498040199, 0.019999999552965164],
+                            [-0.07439713180065155, -0.046767041087150574, 0.019999999552965164],
+                            [-0.0469803623855114, 0.002279567765071988, 0.019999999552965164]]),
+        cube_yaw=jnp.array([-0.24813103675842285, -1.0018560886383057, 0.5905673503875732]),
+        held=jnp.asarray(-1, jnp.int32))
+    action = jnp.array([0.9894592761993408, 0.15698003768920898, 0.9531979560852051, 0.7247805595397949,
+                        -0.5296587944030762])
+    nxt = K.dynamics(s, action)
+    assert int(nxt.held) == -1 and float(nxt.aperture) == pytest.approx(float(s.aperture))
+    assert not bool(_gripper_in_cube(nxt)) and not bool(K.cubes_interpenetrate(nxt))
+    # With blue moved away the same step grasps yellow.
+    clear = K.dynamics(s.replace(cube_pos=s.cube_pos.at[2, 0].set(0.08)), action)
+    assert int(clear.held) == 1 and float(clear.aperture) == pytest.approx(L.CUBE_SIZE)
+
+
 def _gripper_in_cube(s):
     cube_cs = jnp.stack([jnp.cos(s.cube_yaw), jnp.sin(s.cube_yaw)], -1)
     held = (jnp.arange(L.NUM_CUBES) == s.held) & (s.held >= 0)
@@ -295,6 +317,7 @@ def invariant_rollout():
 @settings(max_examples=5, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1))
 @example(seed=1468)  # a cube released beside its support slid into the gripper (before 2026-12-06)
+@example(seed=41)  # the pads closed on a cube into a corner of another (before 2026-12-06, later)
 def test_property_no_interpenetration_no_nonfinite(invariant_rollout, seed):
     cubes_bad, gripper_bad, nonfinite, below, holding = invariant_rollout(jax.random.PRNGKey(seed))
     assert not np.any(cubes_bad), "cubes interpenetrate"

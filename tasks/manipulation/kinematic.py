@@ -223,7 +223,12 @@ def dynamics(s: KinematicState, action: jax.Array) -> KinematicState:
     # cube's width would trap an off-centre cube: the pads stop at first contact, above that width.)
     pad_reaches = (ap_cmd <= L.CUBE_SIZE) | gripper_hits_cubes(
         s.pinch, s.yaw, ap_cmd, s.cube_pos, cube_cs, jnp.arange(L.NUM_CUBES) != g)
-    grasp_now = (~holding) & closing & pad_reaches & graspable[g] & snap_ok
+    # The pads closed on the snapped cube must not enter another cube (a corner of one poking in
+    # between the pads stops them first: no grasp, and the free closing below is blocked).
+    snapped_cs = cube_cs.at[g].set(_cs(snap_yaw))
+    pads_clear = ~gripper_hits_cubes(s.pinch, s.yaw, jnp.asarray(L.CUBE_SIZE), s.cube_pos.at[g].set(snap_pos),
+                                     snapped_cs, jnp.arange(L.NUM_CUBES) == g)
+    grasp_now = (~holding) & closing & pad_reaches & graspable[g] & snap_ok & pads_clear
 
     cube_pos = jnp.where(grasp_now, s.cube_pos.at[g].set(snap_pos), s.cube_pos)
     cube_yaw = jnp.where(grasp_now, s.cube_yaw.at[g].set(snap_yaw), s.cube_yaw)
