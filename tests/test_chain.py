@@ -118,6 +118,10 @@ def _check_ship(tmp_path, capsys):
         os.remove(lib / "kinematic" / "stack_green_on_yellow.json")
         main(base + ["--stage", "stack", "--min_success", "0"])
         assert "shipped stack as stack_green_on_yellow" in capsys.readouterr().out
+        main(base + ["--stage", "stack", "--min_success", "0", "--as_seed", "2"])  # the chain's seed 0 as .s2
+        assert "shipped stack as stack_green_on_yellow.s2:" in capsys.readouterr().out
+        side_s2 = json.load(open(lib / "kinematic" / "stack_green_on_yellow.s2.json"))
+        assert side_s2["seed"] == 0 and side_s2["library_seed"] == 2
         for argv, needle in [(base + ["--stage", "lift_green", "--min_success", "0"], "already exists"),
                              (base + ["--stage", "lift_blue"], "has not finished in chain; finished stages: "
                                                                "lift_green, stack"),

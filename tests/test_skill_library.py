@@ -94,14 +94,15 @@ def test_shipped_skill(path):
     physics = meta["physics"]  # the backend it was trained and recorded on
     stem = os.path.basename(path)[:-4]
     assert skill_library.library_dir(physics) == library and meta["domain"] == "manipulation"
-    assert stem == (meta["task"] if meta["seed"] == 0 else f"{meta['task']}.s{meta['seed']}")
+    lib_seed = meta.get("library_seed", meta["seed"])  # training.ship --as_seed: another seed's name
+    assert stem == (meta["task"] if lib_seed == 0 else f"{meta['task']}.s{lib_seed}")
     assert meta["name"] == meta["task"] and meta["task"] in tasks.names()
     assert (meta["obs_size"], meta["action_size"]) == (L.OBS_SIZE, L.ACTION_SIZE)
     assert meta["hidden"] == [128, 256, 128] and meta["min_std"] == 0.05  # NewSkillConfig defaults
     if meta["trained_with"] == "skills":  # a chain stage's new skill (training.chain -> training.ship)
         assert meta["command"].startswith("python -m training.chain ")
         stage = meta["training"]["chain_stage"]  # shipped under its full name (stack -> stack_green_on_yellow)
-        assert library_file_name(stage, meta["seed"]) == stem and meta["training"]["env_steps"] > 0
+        assert library_file_name(stage, lib_seed) == stem and meta["training"]["env_steps"] > 0
         assert meta["ship_command"].startswith("python -m training.ship ") and f"--stage {stage}" in meta["ship_command"]
         assert meta["training"]["stage_command"].startswith(f"python -m training.run --task {stage} ")
         from training.export import file_sha256

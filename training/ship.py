@@ -6,10 +6,11 @@ library, lift X and stack X on Y, are outputs of SkillS runs, as in the paper's 
 Copies ``CHAIN/skills/STAGE.npz`` byte for byte to ``checkpoints/<library>/NAME.npz`` (``library``
 = ``skill_library.library_dir(physics)``; NAME is the stage's full task name, as skill tables use it:
 ``stack`` ships as ``stack_green_on_yellow``; a chain of ``--seed K`` > 0 ships ``NAME.sK``, as the
-``many_useful`` skill set names seeds), measures the shipped file with ``training.evaluate``
-(``--episodes`` 64, ``--seed`` 0) and writes the library sidecar: sizes and network, the chain
-command and the stage's ``training.run`` command, the skills it was trained with, its env steps and
-training wall time (summed over resumes), and that success with the command that reproduces it.
+``many_useful`` skill set names seeds; ``--as_seed K`` ships under seed K's name instead), measures
+the shipped file with ``training.evaluate`` (``--episodes`` 64, ``--seed`` 0) and writes the library
+sidecar: sizes and network, the chain command and the stage's ``training.run`` command, the skills it
+was trained with, its env steps and training wall time (summed over resumes), and that success with
+the command that reproduces it.
 
 Refused in one line (exit 2, nothing written): a stage the chain has not finished, a success
 below the library's bar (``--min_success``, default 0.8; 0.7 for the MJX scene, issue 4), or a
@@ -40,6 +41,10 @@ def build_parser():
     p.add_argument("--min_success", type=float, default=None,
                    help=f"refuse a skill below this success (default {DEFAULT_MIN_SUCCESS}, MJX library 0.7)")
     p.add_argument("--root", default=None, help="library root (default: the repository's checkpoints/)")
+    p.add_argument("--as_seed", type=nonnegative_int, default=None,
+                   help="the library seed to ship as (default: the stage's training seed): 0 the skill's "
+                        "default file NAME.npz, K > 0 NAME.sK; e.g. the best of several seeds' stages as the "
+                        "default (the sidecar's seed stays the training seed, its library_seed records K)")
     return p
 
 
@@ -97,7 +102,7 @@ def library_sidecar(meta: dict, record: dict, stage_record: dict, run_config: Ru
 
 
 def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=None, root=None,
-         ship_command: str = "") -> dict:
+         ship_command: str = "", as_seed=None) -> dict:
     """Copy, evaluate, and write the sidecar (see the module docstring). Returns the sidecar."""
     from parallel_skills import Skill
     from training import skill_library
@@ -119,7 +124,7 @@ def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=
     bar = MIN_SUCCESS.get(library, DEFAULT_MIN_SUCCESS) if min_success is None else float(min_success)
     default_root = root is None
     name = canonical(stage)  # the library names a stage's skill as skill tables do (stack -> stack_green_on_yellow)
-    file_name = library_file_name(stage, int(run_config.seed))
+    file_name = library_file_name(stage, int(run_config.seed) if as_seed is None else int(as_seed))
     dst = skill_library.library_path(physics, file_name, root=root)
     dst_json = dst[:-4] + ".json"
     # A .npz without its sidecar and with the source's bytes is a ship killed between its two renames:
@@ -149,6 +154,8 @@ def ship(chain: str, stage: str, episodes: int = 64, seed: int = 0, min_success=
                            episodes=episodes, seed=seed, eval_command=eval_command,
                            ship_command=ship_command, wall_time_s=wall)
     side.update(arch=meta.get("arch", skill.arch), sha256=file_sha256(src))
+    if as_seed is not None:  # shipped under another seed's name than its training seed's
+        side["library_seed"] = int(as_seed)
     os.makedirs(os.path.dirname(dst), exist_ok=True)
     shutil.copyfile(src, dst + ".tmp")
     os.replace(dst + ".tmp", dst)  # a kill from here on leaves the orphan .npz finished above
@@ -163,8 +170,9 @@ def main(argv=None):
         fail(f"--min_success must be in [0, 1], got {args.min_success}")
     command = " ".join(["python -m training.ship"] + argv)
     side = main_guard(lambda: ship(args.chain, args.stage, args.episodes, args.seed, args.min_success, args.root,
-                                   ship_command=command))
-    print(f"shipped {args.stage} as {library_file_name(args.stage, side['seed'])}: success={side['success']:.4f} over {side['success_episodes']} episodes")
+                                   ship_command=command, as_seed=args.as_seed))
+    shipped_as = library_file_name(args.stage, side["seed"] if args.as_seed is None else args.as_seed)
+    print(f"shipped {args.stage} as {shipped_as}: success={side['success']:.4f} over {side['success_episodes']} episodes")
 
 
 if __name__ == "__main__":
