@@ -171,7 +171,7 @@ def main(argv=None):
     command = " ".join(["python -m training.ship"] + argv)
     side = main_guard(lambda: ship(args.chain, args.stage, args.episodes, args.seed, args.min_success, args.root,
                                    ship_command=command, as_seed=args.as_seed))
-    shipped_as = library_file_name(args.stage, side["seed"] if args.as_seed is None else args.as_seed)
+    shipped_as = library_file_name(args.stage, side.get("library_seed", side["seed"]))  # as the file was named
     print(f"shipped {args.stage} as {shipped_as}: success={side['success']:.4f} over {side['success_episodes']} episodes")
 
 

@@ -7,8 +7,9 @@ Model (one agent step, dt = 0.05 s):
   1. Fingers move by ``action[4]·MAX_FINGER_SPEED·dt``. Closing onto a cube that sits between the
      pads (centred within ``GRASP_TOL_XY`` / ``GRASP_TOL_Z`` in the pinch frame, faces aligned
      within ``GRASP_TOL_YAW``) grasps it on the step a pad would reach it: the pads stop at the
-     cube's width and the cube is centred and aligned between them (if that does not push it into
-     another cube). Any other finger motion that would make a pad penetrate a cube is blocked.
+     cube's width and the cube is centred and aligned between them (if that does not push it, or
+     the pads at its width, into another cube). Any other finger motion that would make a pad
+     penetrate a cube is blocked.
      Opening past the cube's width releases a held cube, which settles (see 3), unless it would
      settle into the gripper (a pad holds it back: the fingers stay at its width).
   2. The pinch moves by the commanded Cartesian velocity and the wrist turns by the yaw rate,
@@ -225,9 +226,9 @@ def dynamics(s: KinematicState, action: jax.Array) -> KinematicState:
         s.pinch, s.yaw, ap_cmd, s.cube_pos, cube_cs, jnp.arange(L.NUM_CUBES) != g)
     # The pads closed on the snapped cube must not enter another cube (a corner of one poking in
     # between the pads stops them first: no grasp, and the free closing below is blocked).
-    snapped_cs = cube_cs.at[g].set(_cs(snap_yaw))
-    pads_clear = ~gripper_hits_cubes(s.pinch, s.yaw, jnp.asarray(L.CUBE_SIZE), s.cube_pos.at[g].set(snap_pos),
-                                     snapped_cs, jnp.arange(L.NUM_CUBES) == g)
+    # (Cube g itself is ignored, so its pose before or after the snap does not matter.)
+    pads_clear = ~gripper_hits_cubes(s.pinch, s.yaw, jnp.asarray(L.CUBE_SIZE), s.cube_pos, cube_cs,
+                                     jnp.arange(L.NUM_CUBES) == g)
     grasp_now = (~holding) & closing & pad_reaches & graspable[g] & snap_ok & pads_clear
 
     cube_pos = jnp.where(grasp_now, s.cube_pos.at[g].set(snap_pos), s.cube_pos)
