@@ -74,7 +74,9 @@ class Actor:
     """The acting functions of B envs of ``env`` with frozen ``skill_set`` + the new skill (index
     N = ``skill_set.num_skills``). ``scheduler_apply(params, obs) -> (logits_i, logits_k)``,
     ``new_skill_apply(params, obs) -> (mean, std)``. ``scheduler_acts`` False: the new skill
-    always acts (training from scratch)."""
+    always acts (training from scratch). ``greedy_envs``: the first that many envs act greedily even
+    when collecting (argmax decisions, the new skill's mean, no collection noise; Ape-X-style
+    exploration levels per actor, ``TrainConfig.greedy_env_fraction``); 0: all explore (the paper)."""
 
     env: Any
     skill_set: SkillSet
@@ -84,6 +86,7 @@ class Actor:
     num_envs: int
     skill_noise_std: float
     scheduler_acts: bool = True
+    greedy_envs: int = 0
 
     @property
     def new_index(self) -> int:
@@ -100,14 +103,22 @@ class Actor:
         b = self.num_envs
         return ActorState(env_state, zi, zi, zi, jnp.ones((b,), bool), jnp.zeros((b,)), jnp.zeros((b,)))
 
+    def greedy_mask(self):
+        """[B] bool: the envs that act greedily while collecting (the first ``greedy_envs``)."""
+        return jnp.arange(self.num_envs) < self.greedy_envs
+
     def decide(self, actor: ActorState, logits_i, logits_k, k_i, k_k, greedy: bool):
-        """Sample z = (i, k) for every env, used where its counter expired (or an episode starts):
-        the counters of paper App. A.1. Returns (c, i, k_idx, is_decision), each [B]."""
+        """Sample z = (i, k) for every env (argmax where greedy), used where its counter expired
+        (or an episode starts): the counters of paper App. A.1. Returns (c, i, k_idx, is_decision), each [B]."""
         if greedy:
             i_new, k_new = jnp.argmax(logits_i, -1), jnp.argmax(logits_k, -1)
         else:
             i_new = jax.random.categorical(k_i, logits_i)
             k_new = jax.random.categorical(k_k, logits_k)
+            if self.greedy_envs:
+                mask = self.greedy_mask()
+                i_new = jnp.where(mask, jnp.argmax(logits_i, -1), i_new)
+                k_new = jnp.where(mask, jnp.argmax(logits_k, -1), k_new)
         if not self.scheduler_acts:  # from scratch: the new skill always acts
             i_new = jnp.full_like(i_new, self.new_index)
         return advance_counters(actor.c, actor.i, actor.k_idx, i_new.astype(jnp.int32), k_new.astype(jnp.int32),
@@ -117,14 +128,20 @@ class Actor:
         """Each env's action [B, A] from its running skill i [B]; collection noise (not greedy) on
         the frozen skills' actions, those whose ``Skill.collection_noise`` is set. The new skill's
         action is sampled from its Gaussian unless greedy (then its mean); ``new_skill_sampled``
-        overrides that choice (the greedy scheduler with the new skill as it collects)."""
+        overrides that choice (the greedy scheduler with the new skill as it collects). The
+        ``greedy_envs`` act as greedy in any case."""
         mean, std = self.new_skill_apply(new_params, nobs)
         sampled = (not greedy) if new_skill_sampled is None else bool(new_skill_sampled)
         new_action = networks.sample_action(mean, std, k_a) if sampled else networks.deterministic_action(mean)
+        explores = ~self.greedy_mask() if (self.greedy_envs and not greedy) else None  # [B]
+        if explores is not None and sampled:
+            new_action = jnp.where(explores[:, None], new_action, networks.deterministic_action(mean))
         action = self.skill_set.actions(new_action, obs, i, k_s)
         if self.skill_noise_std > 0 and not greedy:
             noise = self.skill_noise_std * jax.random.normal(jax.random.fold_in(k_s, 1), action.shape)
             noisy = jnp.asarray(self.skill_set.collection_noise)[i]  # [B]; False for the new skill
+            if explores is not None:
+                noisy = noisy & explores
             action = jnp.where(noisy[:, None], jnp.clip(action + noise, -1.0, 1.0), action)
         return action
 

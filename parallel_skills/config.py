@@ -35,7 +35,7 @@ POSITIVE_FIELDS = frozenset({
     "num_critics", "n_step", "num_timesteps", "episode_length", "checkpoint_every"})
 # Float fields that must lie in [0, 1] (every other float field must be finite), in any config class.
 UNIT_INTERVAL_FIELDS = frozenset({"target_tau", "mpo_alpha", "dagger_alpha", "skill_entropy_floor",
-                                  "length_entropy_floor"})
+                                  "length_entropy_floor", "greedy_env_fraction"})
 
 
 class FieldError(ValueError):
@@ -321,6 +321,11 @@ class TrainConfig:
     # scripted) skills give the new skill no data off their exact paths to learn recovery
     # from: cloning scripted lift from its noise-free paths fails (docs/learning.md).
     skill_noise_std: float = 0.3
+    # Fraction of the training envs (the first round(f · num_envs)) that collect as the greedy
+    # evaluation acts: argmax decisions, the new skill's mean action, no collection noise (beyond
+    # the paper; Ape-X's per-actor exploration levels). Their data show the learners the states the
+    # deterministic read-outs reach. 0: every env explores (the paper).
+    greedy_env_fraction: float = 0.0
     scheduler: SchedulerConfig = SchedulerConfig()
     new_skill: NewSkillConfig = NewSkillConfig()
 

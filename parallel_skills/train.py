@@ -91,16 +91,25 @@ class Trainer:
     steps_per_iteration: int
 
 
-def make_actor(environment, skills: Sequence[Skill], config: TrainConfig, num_envs: int) -> Actor:
+def make_actor(environment, skills: Sequence[Skill], config: TrainConfig, num_envs: int,
+               collecting: bool = False) -> Actor:
     """The acting functions of ``num_envs`` envs (``skills``: the frozen ones; none from scratch).
     The scheduler chooses when the method says so (``Method.scheduler_acts``: SkillS's scheduler,
-    RHPO's categorical, a scheduler with K = {1}); otherwise the new skill always acts."""
+    RHPO's categorical, a scheduler with K = {1}); otherwise the new skill always acts.
+    ``collecting``: the training envs, of which ``config.greedy_env_fraction`` act greedily (the
+    evaluations' actors act as each evaluation says)."""
     n_total = len(skills) + 1  # frozen skills + the new skill (index N)
     return Actor(env=environment, skill_set=SkillSet(skills),
                  scheduler_apply=learners.make_scheduler_apply(n_total, config.scheduler),
                  new_skill_apply=learners.make_new_skill_apply(int(environment.action_size), config.new_skill),
                  skill_lengths=tuple(config.scheduler.skill_lengths), num_envs=int(num_envs),
-                 skill_noise_std=config.skill_noise_std, scheduler_acts=methods.get(config.method).scheduler_acts)
+                 skill_noise_std=config.skill_noise_std, scheduler_acts=methods.get(config.method).scheduler_acts,
+                 greedy_envs=greedy_env_count(config.greedy_env_fraction, num_envs) if collecting else 0)
+
+
+def greedy_env_count(fraction: float, num_envs: int) -> int:
+    """The envs of a batch of ``num_envs`` that collect greedily: round(fraction · num_envs)."""
+    return int(round(float(fraction) * int(num_envs)))
 
 
 def make_replay(environment, config: TrainConfig) -> Replay:
@@ -176,7 +185,7 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig, mesh
     steps_per_iter = config.steps_per_iteration
     n_sched = updates_per_iteration(sc.samples_per_insert, steps_per_iter, sc.batch_size)
     n_new = updates_per_iteration(nc.samples_per_insert, steps_per_iter, nc.batch_size)
-    actor = make_actor(environment, skills, config, config.num_envs)
+    actor = make_actor(environment, skills, config, config.num_envs, collecting=True)
     replay = make_replay(environment, config)
 
     # A teacher baseline (kl_reg / dagger): the new skill's loss reads the frozen skills' actions at

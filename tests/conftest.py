@@ -7,6 +7,13 @@ import os
 
 import jax
 import pytest
+from hypothesis import settings
+
+# Property tests draw the same examples on every run (CI reruns a clean clone at each stop: a new
+# draw must not turn it red by chance); ``HYPOTHESIS_PROFILE=explore`` draws new ones, to search.
+settings.register_profile("repro", derandomize=True, database=None)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "repro"))
 
 _CACHE = os.environ.get("PARALLEL_SKILLS_TEST_CACHE", os.path.join(os.path.expanduser("~"), ".cache", "parallel_skills_jax"))
 jax.config.update("jax_compilation_cache_dir", _CACHE)

@@ -222,6 +222,37 @@ def test_evaluate_scheduler_with_the_new_skills_sampled_actions(tmp_path, capsys
     assert e.value.code == 2 and "--actions sampled needs a Gaussian-MLP policy" in capsys.readouterr().err
 
 
+def test_evaluate_scheduler_sampled_decisions_and_collection_noise(tmp_path, capsys):
+    """``:scheduler --decisions sampled`` draws the choices from the scheduler's heads (a uniform
+    scheduler's argmax is always skill 0, its samples spread over every skill), ``--skill_noise``
+    perturbs the frozen skills' actions (seeded); both only for a scheduler, one line each."""
+    params = _params(L.OBS_SIZE, L.ACTION_SIZE, len(SKILLS))
+    sched = jax.tree.map(lambda x: x, params.scheduler)
+    for head in ("head_i", "head_k"):
+        sched["params"][head] = jax.tree.map(jnp.zeros_like, sched["params"][head])  # uniform choices
+    params = params.replace(scheduler=sched)
+    path = write_export(str(tmp_path), params, env=_env(), config=CONFIG, task="reach_green", physics="kinematic",
+                        metadata={"skills": SKILLS, "seed": 0, "env_steps": 0})
+    common = ["--task", "reach_green", "--physics", "kinematic", "--episodes", "4", "--episode_length", "40",
+              "--policy", path + ":scheduler"]
+
+    def lines(extra):
+        evaluate.main(common + extra)
+        return capsys.readouterr().out.strip().splitlines()
+
+    greedy, sampled = lines([]), lines(["--decisions", "sampled"])
+    usage = lambda out: dict(kv.split("=") for kv in out[-2].split(": ")[1].split())  # noqa: E731
+    assert usage(greedy)[SKILLS[0]] == "1.000"  # argmax of equal logits: the first skill
+    assert all(float(v) > 0 for v in usage(sampled).values()), sampled[-2]  # every skill is chosen
+    assert sampled[0].endswith("decisions=sampled") and lines(["--decisions", "sampled"]) == sampled  # seeded
+    noisy = lines(["--skill_noise", "0.3"])
+    assert noisy[0].endswith("skill_noise=0.3") and usage(noisy) == usage(greedy)
+    assert noisy[-1] != greedy[-1] and lines(["--skill_noise", "0.3"]) == noisy  # perturbed, seeded
+    assert "--decisions must be one of greedy, sampled, got 'soft'" in _bad(common + ["--decisions", "soft"], capsys)
+    assert "--skill_noise must be a finite std >= 0" in _bad(common + ["--skill_noise", "-1"], capsys)
+    assert "apply to a scheduler" in _bad(common[:-1] + [path, "--decisions", "sampled"], capsys)
+
+
 def test_evaluate_scheduler_runs_library_and_skill_dir_skills(tmp_path, capsys):
     """An export of a run with neural skills (``--skill_source library`` / ``--skill_dir``) runs those
     files under ``:scheduler`` (NumPy, on the JAX-free twin here), not the scripted controllers of the

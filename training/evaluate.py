@@ -31,6 +31,14 @@ the deterministic read-out that ``eval/new_skill_success`` reports) or ``sampled
 Gaussian; its mean can succeed much less often). With ``:scheduler`` it applies to the new skill
 only: the choices stay greedy and the frozen skills noise-free, so the difference to ``mean`` is
 what the scheduler's runs of the new skill owe to its Gaussian.
+
+``--decisions`` / ``--skill_noise`` (``:scheduler`` only): ``sampled`` draws each choice (i, k) from
+the scheduler's two categorical heads instead of taking their argmax, and ``--skill_noise STD`` adds
+clip(a + STD·ε, −1, 1) to the frozen skills' actions, as the trainer's collection noise
+(``--skill_noise_std``, 0.3) does. ``--decisions sampled --actions sampled --skill_noise 0.3`` is the
+scheduler as it collects (``eval/scheduler_sampled_success``); the defaults are the greedy scheduler
+(``eval/scheduler_success``), so each read-out of docs/skills.md can be measured apart, with as many
+episodes as wanted.
 """
 
 from __future__ import annotations
@@ -43,6 +51,7 @@ from training.cli import Parser, UsageError, main_guard, nonnegative_int, positi
 
 EXPORT_SUFFIXES = ("new_skill", "scheduler")
 ACTIONS = ("mean", "sampled")  # --actions
+DECISIONS = ("greedy", "sampled")  # --decisions
 
 
 def parse_policy(spec: str, physics: str = "kinematic") -> tuple[str, str, str | None]:
@@ -239,13 +248,35 @@ def frozen_skills(export, seed: int):
     return actions
 
 
-def scheduler_policy(export, seed: int, new_skill_actions: str = "mean"):
-    """The export's scheduler running its skills (greedy choices, counters): a batched NumPy
-    ``act(obs) -> actions`` with a ``usage`` attribute (steps per skill). ``new_skill_actions``
-    (``ACTIONS``): the new skill's mean action, or actions sampled from its Gaussian."""
+def with_collection_noise(actions, std: float, rng: np.random.Generator, noisy_skills: np.ndarray):
+    """``actions`` (``fn(obs) -> [N, B, A]``) with clip(a + std·ε, −1, 1), ε ~ N(0, I) added to the
+    skills where ``noisy_skills`` [N] is True, as the trainer's collection noise on the frozen skills
+    (``Actor.actions``; the OP3 controllers take none)."""
+    mask = np.asarray(noisy_skills, bool)[:, None, None]
+
+    def noisy(obs):
+        a = actions(obs)
+        noised = np.clip(a + std * rng.standard_normal(a.shape), -1.0, 1.0)
+        return np.where(mask, noised, a).astype(np.float32)
+
+    return noisy
+
+
+def scheduler_policy(export, seed: int, new_skill_actions: str = "mean", decisions: str = "greedy",
+                     skill_noise: float = 0.0):
+    """The export's scheduler running its skills (counters): a batched NumPy ``act(obs) -> actions``
+    with a ``usage`` attribute (steps per skill). ``new_skill_actions`` (``ACTIONS``): the new skill's
+    mean action, or actions sampled from its Gaussian; ``decisions`` (``DECISIONS``): argmax choices
+    or choices sampled from the scheduler; ``skill_noise``: the std of the Gaussian collection noise
+    on the frozen skills' actions (clipped to [−1, 1]; 0: none)."""
     from parallel_skills.numpy_policy import ScheduledPolicy
 
     frozen = frozen_skills(export, seed)
+    if frozen is not None and skill_noise > 0:
+        from training.skill_library import OP3_PREFIX
+
+        frozen = with_collection_noise(frozen, skill_noise, np.random.default_rng([seed, 2]),
+                                       [not n.startswith(OP3_PREFIX) for n in export.frozen_skill_names])
     rng = np.random.default_rng([seed, 1])
 
     def new_skill(obs):
@@ -255,7 +286,8 @@ def scheduler_policy(export, seed: int, new_skill_actions: str = "mean"):
         new = new_skill(obs)[None]
         return new if frozen is None else np.concatenate([frozen(obs), new], axis=0)
 
-    return ScheduledPolicy(export.scheduler, every_skill, export.skill_lengths)
+    return ScheduledPolicy(export.scheduler, every_skill, export.skill_lengths,
+                           rng=np.random.default_rng([seed, 3]) if decisions == "sampled" else None)
 
 
 def jax_new_skill(export):
@@ -290,6 +322,12 @@ def main(argv=None):
                    help=f"one of {', '.join(ACTIONS)}: a Gaussian-MLP policy's mean action or actions sampled from "
                         "its Gaussian (as collected); with :scheduler, the new skill's (choices stay greedy, the "
                         "frozen skills noise-free)")
+    p.add_argument("--decisions", default="greedy",
+                   help=f"with :scheduler, one of {', '.join(DECISIONS)}: the argmax of the scheduler's heads or "
+                        "choices sampled from them (as collected)")
+    p.add_argument("--skill_noise", type=float, default=0.0,
+                   help="with :scheduler: std of the Gaussian noise on the frozen skills' actions (the trainer "
+                        "collects with 0.3); default 0")
     p.add_argument("--usage_plot", default=None,
                    help="with a ':scheduler' policy: write this image of the skill it runs at each step of the "
                         "episode (share of episodes per skill over episode time)")
@@ -300,7 +338,8 @@ def main(argv=None):
             raise UsageError(f"--usage_plot needs a ':scheduler' policy (DIR:scheduler), not {args.policy!r}")
         result = evaluate_policy(args.task, args.physics, args.policy, episodes=args.episodes, seed=args.seed,
                                  episode_length=args.episode_length, actions=args.actions,
-                                 start_states=args.start_states)
+                                 start_states=args.start_states, decisions=args.decisions,
+                                 skill_noise=args.skill_noise)
         if args.usage_plot:
             from training.plot import plot_usage_over_episode
 
@@ -315,7 +354,9 @@ def main(argv=None):
         success = float(np.mean(result["success"]))
         ret = float(np.mean(result["return"]))
         print(f"task={args.task} physics={args.physics} policy={args.policy} episodes={args.episodes}"
-              + (f" actions={args.actions}" if args.actions != "mean" else ""))
+              + (f" actions={args.actions}" if args.actions != "mean" else "")
+              + (f" decisions={args.decisions}" if args.decisions != "greedy" else "")
+              + (f" skill_noise={args.skill_noise:g}" if args.skill_noise else ""))
         for line in lines:
             print(line)
         print(f"success={success:.4f} return={ret:.3f}")
@@ -324,11 +365,12 @@ def main(argv=None):
 
 
 def evaluate_policy(task: str, physics: str, policy: str, episodes: int = 64, seed: int = 0,
-                    episode_length: int | None = None, actions: str = "mean", start_states: str = "table") -> dict:
+                    episode_length: int | None = None, actions: str = "mean", start_states: str = "table",
+                    decisions: str = "greedy", skill_noise: float = 0.0) -> dict:
     """What ``python -m training.evaluate`` computes, as a function: per-episode ``success`` and
     ``return`` arrays of ``policy`` (a ``--policy`` spec) on ``task`` / ``physics``, plus ``lines``
-    (the extra report lines); ``actions`` as ``--actions``, ``start_states`` as ``--start_states``.
-    UsageError / ValueError on bad input."""
+    (the extra report lines); ``actions``, ``start_states``, ``decisions``, ``skill_noise`` as their
+    flags. UsageError / ValueError on bad input."""
     import argparse
 
     import tasks
@@ -339,9 +381,17 @@ def evaluate_policy(task: str, physics: str, policy: str, episodes: int = 64, se
         raise UsageError(f"unknown physics {physics!r}; valid: {', '.join(tasks.PHYSICS)}")
     if actions not in ACTIONS:
         raise UsageError(f"--actions must be one of {', '.join(ACTIONS)}, got {actions!r}")
+    if decisions not in DECISIONS:
+        raise UsageError(f"--decisions must be one of {', '.join(DECISIONS)}, got {decisions!r}")
+    if not (np.isfinite(skill_noise) and skill_noise >= 0):
+        raise UsageError(f"--skill_noise must be a finite std >= 0, got {skill_noise!r}")
     args = argparse.Namespace(task=task, physics=physics, policy=policy, episodes=int(episodes), seed=int(seed),
-                              episode_length=episode_length, actions=actions, start_states=start_states)
+                              episode_length=episode_length, actions=actions, start_states=start_states,
+                              decisions=decisions, skill_noise=float(skill_noise))
     kind, target, suffix = parse_policy(policy, physics)
+    if suffix != "scheduler" and (decisions != "greedy" or skill_noise):
+        raise UsageError(f"--decisions and --skill_noise apply to a scheduler (DIR:scheduler or "
+                         f"DIR/export.npz:scheduler), not {policy!r}")
     if actions == "sampled" and kind == "scripted":
         raise UsageError(f"--actions sampled needs a Gaussian-MLP policy (a skill .npz, an export's new skill, or "
                          f"its scheduler's new skill), not {policy!r}")
@@ -384,7 +434,8 @@ def _evaluate_on_twin(args, kind, path, export, suffix):
         policy = NumpyGaussianPolicy.load(path, obs_size=L.OBS_SIZE, action_size=L.ACTION_SIZE)
     else:
         export.check_task_sizes(L.OBS_SIZE, L.ACTION_SIZE)
-        policy = export.new_skill if suffix != "scheduler" else scheduler_policy(export, args.seed, args.actions)
+        policy = export.new_skill if suffix != "scheduler" else scheduler_policy(export, args.seed, args.actions,
+                                                                                  args.decisions, args.skill_noise)
     if args.actions == "sampled" and suffix != "scheduler":
         gaussian, rng = policy, np.random.default_rng([args.seed, 1])
         policy = lambda obs: gaussian.sample(obs, rng)  # noqa: E731
@@ -412,7 +463,7 @@ def _evaluate_on_jax_env(args, kind, target, export, suffix):
     if export is not None:
         export.check_task_sizes(env.observation_size, env.action_size)
         if suffix == "scheduler":
-            policy = scheduler_policy(export, args.seed, args.actions)
+            policy = scheduler_policy(export, args.seed, args.actions, args.decisions, args.skill_noise)
             envs = JaxEnvBatch(env, args.episodes, args.seed)
             result = run_episodes(envs, policy, int(env.episode_length))
             return (_with_timeline(result, export, policy, getattr(env, "dt", None), envs.start_kind,
