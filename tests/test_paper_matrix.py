@@ -126,3 +126,18 @@ def test_plots_each_method_at_its_best_setting_and_the_ablations(tmp_path, capsy
     printed = capsys.readouterr().out
     assert "started" not in printed and os.path.isfile(os.path.join(out, "results.md"))
     assert sorted(os.listdir(os.path.join(out, "lift", "k1"))) == ["s0"]
+
+
+def test_run_jobs_reports_each_job_as_it_finishes(tmp_path, capsys):
+    """``run_jobs``'s ``on_finish(index, exit code)`` comes as each job ends (what lets ``--archive``
+    keep a run that finished before the plan was cut), with the job's own code."""
+    import sys
+
+    from training.experiments.paper import run_jobs
+
+    seen = []
+    jobs = [([sys.executable, "-c", "import sys; sys.exit(0)"], str(tmp_path / "a.log")),
+            ([sys.executable, "-c", "import sys; sys.exit(3)"], str(tmp_path / "b.log"))]
+    codes = run_jobs(jobs, 1, on_finish=lambda idx, code: seen.append((idx, code)))
+    assert codes == [0, 3] and seen == [(0, 0), (1, 3)]
+    assert "FAILED (exit 3)" in capsys.readouterr().out

@@ -23,7 +23,8 @@ trainings at once, each pinned to its own CPU core. ``--dry_run`` prints the pla
 ``--report_only`` writes the plots and table from the runs on disk (of ``--seeds``) and trains
 nothing (e.g. sweep settings run on fewer seeds than the defaults). ``--archive DIR`` copies every
 run's records without machine paths (``training.archive``) to ``DIR/<task>/<variant>/s<seed>/``
-(the repository keeps them in ``docs/results/paper_runs``).
+(the repository keeps them in ``docs/results/paper_runs``): each run as soon as it finishes, and
+every run of the plan again at the end.
 """
 
 from __future__ import annotations
@@ -161,9 +162,9 @@ def _pin(core: Optional[int]):
     return lambda: os.sched_setaffinity(0, {core})
 
 
-def run_jobs(jobs: list, parallel: int) -> list:
+def run_jobs(jobs: list, parallel: int, on_finish=None) -> list:
     """Run (command, log path) jobs, ``parallel`` at a time, each pinned to its own core when
-    parallel > 1. Returns the exit codes in job order."""
+    parallel > 1; ``on_finish(index, exit code)`` as each ends. Returns the exit codes in job order."""
     cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else list(range(parallel))
     pending, running, codes = list(enumerate(jobs)), {}, [None] * len(jobs)
     while pending or running:
@@ -184,6 +185,8 @@ def run_jobs(jobs: list, parallel: int) -> list:
                 del running[idx]
                 print(f"{'finished' if proc.returncode == 0 else f'FAILED (exit {proc.returncode})'}: "
                       f"{jobs[idx][1]}", flush=True)
+                if on_finish is not None:
+                    on_finish(idx, proc.returncode)
     return codes
 
 
@@ -372,7 +375,7 @@ def main(argv=None):
         return task_list, variants, seeds, budgets
 
     task_list, variants, seeds, budgets = main_guard(plan)
-    jobs = []
+    jobs, job_archives = [], []  # job_archives: (run dir, its archive folder) or None, per job
     for task in task_list:
         for v in variants:
             config_path = None
@@ -394,9 +397,21 @@ def main(argv=None):
                 os.makedirs(os.path.dirname(run_dir), exist_ok=True)
                 jobs.append((train_command(task, v, seed, budgets[task], run_dir, status, config_path),
                              f"{run_dir}.log"))
+                job_archives.append((run_dir, os.path.join(args.archive, task, v.name, f"s{seed}"))
+                                    if args.archive else None)
     if args.dry_run:
         return
-    codes = run_jobs(jobs, args.jobs)
+
+    def archive_finished(idx: int, code: int):
+        """A run that finished is archived at once, not only when the whole plan ends (a session
+        cut between seeds keeps what finished)."""
+        if code == 0 and job_archives[idx] is not None:
+            from training.archive import archive_run
+
+            for path in archive_run(*job_archives[idx], root=args.out):
+                print(f"archived: {path}", flush=True)
+
+    codes = run_jobs(jobs, args.jobs, on_finish=archive_finished)
     failed = [log for (_, log), c in zip(jobs, codes) if c != 0]
     for path in write_results(args.out, task_list, variants, seeds, budgets):
         print(f"written: {path}")
