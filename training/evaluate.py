@@ -179,7 +179,8 @@ def scripted_controller(name: str):
 
 
 def scripted_skills(names, seed: int):
-    """The frozen skills of an export as ``fn(obs [B, O]) -> actions [N, B, A]`` (jitted JAX)."""
+    """The frozen skills of an export as (``fn(obs [B, O]) -> actions [N, B, A]`` (jitted JAX),
+    each skill's ``Skill.collection_noise`` [N])."""
     import jax
 
     from parallel_skills.skills import SkillSet
@@ -190,14 +191,15 @@ def scripted_skills(names, seed: int):
     except ValueError as e:
         raise UsageError(f"the export's skills {list(names)} are not all scripted controllers ({e}); ':scheduler' "
                          f"runs scripted skills and the new skill") from None
-    frozen = jax.jit(SkillSet(skills).frozen_actions)
+    skill_set = SkillSet(skills)
+    frozen = jax.jit(skill_set.frozen_actions)
     key, step = jax.random.PRNGKey(seed), [0]
 
     def actions(obs):
         step[0] += 1
         return np.asarray(frozen(jax.numpy.asarray(obs, jax.numpy.float32), jax.random.fold_in(key, step[0])))
 
-    return actions
+    return actions, skill_set.collection_noise[:-1]  # (the last entry is the new skill's)
 
 
 def neural_skill(entry: dict, export_path: str):
@@ -221,12 +223,13 @@ def neural_skill(entry: dict, export_path: str):
 
 
 def frozen_skills(export, seed: int):
-    """The export's N frozen skills as ``fn(obs [B, O]) -> actions [N, B, A]`` (NumPy), each from
+    """The export's N frozen skills as (``fn(obs [B, O]) -> actions [N, B, A]`` (NumPy), whether each
+    takes the trainer's collection noise [N] (``Skill.collection_noise``; neural skills do)), each from
     where the run took it (``metadata["skill_sources"]``; exports without it: scripted controllers).
-    Only scripted skills need JAX. None when there are no frozen skills."""
+    Only scripted skills need JAX. (None, None) when there are no frozen skills."""
     names = export.frozen_skill_names
     if not names:
-        return None
+        return None, None
     sources = export.meta.get("metadata", {}).get("skill_sources") or [{"name": n, "source": "scripted"}
                                                                        for n in names]
     if [e["name"] for e in sources] != names:
@@ -234,7 +237,9 @@ def frozen_skills(export, seed: int):
                          f"{names}")
     scripted_idx = [j for j, e in enumerate(sources) if e["source"] == "scripted"]
     neural = {j: neural_skill(e, export.path) for j, e in enumerate(sources) if e["source"] != "scripted"}
-    scripted = scripted_skills([names[j] for j in scripted_idx], seed) if scripted_idx else None
+    scripted, scripted_noise = scripted_skills([names[j] for j in scripted_idx], seed) if scripted_idx else (None, [])
+    takes_noise = np.ones(len(names), bool)
+    takes_noise[scripted_idx] = scripted_noise
 
     def actions(obs):
         out = [None] * len(names)
@@ -245,13 +250,13 @@ def frozen_skills(export, seed: int):
             out[j] = policy(obs)
         return np.stack(out).astype(np.float32)
 
-    return actions
+    return actions, takes_noise
 
 
 def with_collection_noise(actions, std: float, rng: np.random.Generator, noisy_skills: np.ndarray):
     """``actions`` (``fn(obs) -> [N, B, A]``) with clip(a + std·ε, −1, 1), ε ~ N(0, I) added to the
     skills where ``noisy_skills`` [N] is True, as the trainer's collection noise on the frozen skills
-    (``Actor.actions``; the OP3 controllers take none)."""
+    (``Actor.actions``)."""
     mask = np.asarray(noisy_skills, bool)[:, None, None]
 
     def noisy(obs):
@@ -271,12 +276,9 @@ def scheduler_policy(export, seed: int, new_skill_actions: str = "mean", decisio
     on the frozen skills' actions (clipped to [−1, 1]; 0: none)."""
     from parallel_skills.numpy_policy import ScheduledPolicy
 
-    frozen = frozen_skills(export, seed)
+    frozen, takes_noise = frozen_skills(export, seed)
     if frozen is not None and skill_noise > 0:
-        from training.skill_library import OP3_PREFIX
-
-        frozen = with_collection_noise(frozen, skill_noise, np.random.default_rng([seed, 2]),
-                                       [not n.startswith(OP3_PREFIX) for n in export.frozen_skill_names])
+        frozen = with_collection_noise(frozen, skill_noise, np.random.default_rng([seed, 2]), takes_noise)
     rng = np.random.default_rng([seed, 1])
 
     def new_skill(obs):

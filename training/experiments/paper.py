@@ -23,8 +23,8 @@ trainings at once, each pinned to its own CPU core. ``--dry_run`` prints the pla
 ``--report_only`` writes the plots and table from the runs on disk (of ``--seeds``) and trains
 nothing (e.g. sweep settings run on fewer seeds than the defaults). ``--archive DIR`` copies every
 run's records without machine paths (``training.archive``) to ``DIR/<task>/<variant>/s<seed>/``
-(the repository keeps them in ``docs/results/paper_runs``): each run as soon as it finishes, and
-every run of the plan again at the end.
+(the repository keeps them in ``docs/results/paper_runs``): each run as soon as it finishes, the
+plan's other runs with metrics (finished before, or cut) at the end.
 """
 
 from __future__ import annotations
@@ -299,9 +299,10 @@ def write_results(out: str, tasks: list, variants: list, seeds: list, budgets: d
     return written + [path]
 
 
-def archive_runs(out: str, archive: str, tasks: list, variants: list, seeds: list) -> list:
+def archive_runs(out: str, archive: str, tasks: list, variants: list, seeds: list, done=frozenset()) -> list:
     """``training.archive`` of every run of the plan that has metrics, into
-    ``archive/<task>/<variant>/s<seed>/`` (paths under ``out`` recorded as ``runs/paper/...``)."""
+    ``archive/<task>/<variant>/s<seed>/`` (paths under ``out`` recorded as ``runs/paper/...``);
+    ``done``: run directories archived already (as they finished), skipped."""
     from training.archive import archive_run
 
     written = []
@@ -309,7 +310,7 @@ def archive_runs(out: str, archive: str, tasks: list, variants: list, seeds: lis
         for v in variants:
             for seed in seeds:
                 run_dir = os.path.join(out, task, v.name, f"s{seed}")
-                if os.path.isfile(os.path.join(run_dir, "metrics.csv")):
+                if run_dir not in done and os.path.isfile(os.path.join(run_dir, "metrics.csv")):
                     written += archive_run(run_dir, os.path.join(archive, task, v.name, f"s{seed}"), root=out)
     return written
 
@@ -401,6 +402,7 @@ def main(argv=None):
                                     if args.archive else None)
     if args.dry_run:
         return
+    archived = set()  # run directories archived as they finished
 
     def archive_finished(idx: int, code: int):
         """A run that finished is archived at once, not only when the whole plan ends (a session
@@ -410,13 +412,14 @@ def main(argv=None):
 
             for path in archive_run(*job_archives[idx], root=args.out):
                 print(f"archived: {path}", flush=True)
+            archived.add(job_archives[idx][0])
 
     codes = run_jobs(jobs, args.jobs, on_finish=archive_finished)
     failed = [log for (_, log), c in zip(jobs, codes) if c != 0]
     for path in write_results(args.out, task_list, variants, seeds, budgets):
         print(f"written: {path}")
     if args.archive:
-        for path in archive_runs(args.out, args.archive, task_list, variants, seeds):
+        for path in archive_runs(args.out, args.archive, task_list, variants, seeds, done=archived):
             print(f"archived: {path}")
     if args.results:
         from training.experiments.results import write_tables
