@@ -76,7 +76,9 @@ class Actor:
     ``new_skill_apply(params, obs) -> (mean, std)``. ``scheduler_acts`` False: the new skill
     always acts (training from scratch). ``greedy_envs``: the first that many envs act greedily even
     when collecting (argmax decisions, the new skill's mean, no collection noise; Ape-X-style
-    exploration levels per actor, ``TrainConfig.greedy_env_fraction``); 0: all explore (the paper)."""
+    exploration levels per actor, ``TrainConfig.greedy_env_fraction``); 0: all explore (the paper).
+    ``new_skill_collects_mean``: the new skill acts with its mean action when not greedy too
+    (``TrainConfig.new_skill_collects``); False: sampled from its Gaussian (the paper)."""
 
     env: Any
     skill_set: SkillSet
@@ -87,6 +89,7 @@ class Actor:
     skill_noise_std: float
     scheduler_acts: bool = True
     greedy_envs: int = 0
+    new_skill_collects_mean: bool = False
 
     @property
     def new_index(self) -> int:
@@ -127,11 +130,13 @@ class Actor:
     def actions(self, obs, nobs, new_params, i, k_a, k_s, greedy: bool, new_skill_sampled: bool | None = None):
         """Each env's action [B, A] from its running skill i [B]; collection noise (not greedy) on
         the frozen skills' actions, those whose ``Skill.collection_noise`` is set. The new skill's
-        action is sampled from its Gaussian unless greedy (then its mean); ``new_skill_sampled``
+        action is sampled from its Gaussian unless greedy or ``new_skill_collects_mean`` (then its
+        mean); ``new_skill_sampled``
         overrides that choice (the greedy scheduler with the new skill as it collects). The
         ``greedy_envs`` act as greedy in any case."""
         mean, std = self.new_skill_apply(new_params, nobs)
-        sampled = (not greedy) if new_skill_sampled is None else bool(new_skill_sampled)
+        sampled = (not greedy and not self.new_skill_collects_mean) if new_skill_sampled is None \
+            else bool(new_skill_sampled)
         new_action = networks.sample_action(mean, std, k_a) if sampled else networks.deterministic_action(mean)
         explores = ~self.greedy_mask() if (self.greedy_envs and not greedy) else None  # [B]
         if explores is not None and sampled:

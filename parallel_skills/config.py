@@ -298,6 +298,9 @@ class NewSkillConfig:
         return self.mpo_alpha < 1.0 and BASELINE_READS_TEACHER[self.baseline]
 
 
+NEW_SKILL_COLLECTS = ("sampled", "mean")  # TrainConfig.new_skill_collects
+
+
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
     """Run-level settings. ``None`` fields take device-dependent defaults (``resolve``)."""
@@ -326,6 +329,11 @@ class TrainConfig:
     # the paper; Ape-X's per-actor exploration levels). Their data show the learners the states the
     # deterministic read-outs reach. 0: every env explores (the paper).
     greedy_env_fraction: float = 0.0
+    # How the new skill acts when the scheduler picks it while collecting: "sampled" from its
+    # Gaussian (the paper) or its "mean" action, as every read-out of it acts (beyond the paper):
+    # the scheduler's critic then values choosing the new skill by what its mean does, and the
+    # exploration comes from the scheduler's choices and the frozen skills' collection noise.
+    new_skill_collects: str = "sampled"
     scheduler: SchedulerConfig = SchedulerConfig()
     new_skill: NewSkillConfig = NewSkillConfig()
 
@@ -333,6 +341,10 @@ class TrainConfig:
         check_fields(self)
         check_choice("recipe", self.recipe, RECIPES, f"one of {', '.join(RECIPES)}", nullable=True)
         check_choice("method", self.method, methods.names(), f"one of {', '.join(methods.names())}")
+        check_choice("new_skill_collects", self.new_skill_collects, NEW_SKILL_COLLECTS, "'sampled' or 'mean'")
+        if self.new_skill_collects == "mean" and not methods.get(self.method).scheduler_acts:
+            raise ValueError(f"new_skill_collects 'mean' needs a method whose scheduler acts (else nothing "
+                             f"explores), got method {self.method!r}")
         baseline = self.new_skill.baseline
         if BASELINE_READS_TEACHER[baseline] and methods.get(self.method).teacher_baseline != baseline:
             teachers = [m.name for m in methods.all_methods() if m.teacher_baseline == baseline]

@@ -104,7 +104,8 @@ def make_actor(environment, skills: Sequence[Skill], config: TrainConfig, num_en
                  new_skill_apply=learners.make_new_skill_apply(int(environment.action_size), config.new_skill),
                  skill_lengths=tuple(config.scheduler.skill_lengths), num_envs=int(num_envs),
                  skill_noise_std=config.skill_noise_std, scheduler_acts=methods.get(config.method).scheduler_acts,
-                 greedy_envs=greedy_env_count(config.greedy_env_fraction, num_envs) if collecting else 0)
+                 greedy_envs=greedy_env_count(config.greedy_env_fraction, num_envs) if collecting else 0,
+                 new_skill_collects_mean=config.new_skill_collects == "mean")
 
 
 def greedy_env_count(fraction: float, num_envs: int) -> int:

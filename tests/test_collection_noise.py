@@ -108,3 +108,38 @@ def test_greedy_env_count_and_the_config_field():
         assert e.name == "greedy_env_fraction"
     else:
         raise AssertionError("greedy_env_fraction 1.5 accepted")
+
+
+def test_new_skill_collects_its_mean():
+    """``TrainConfig.new_skill_collects`` "mean": the new skill acts with its mean while collecting
+    (every env, every actor of the run, so the scheduler-as-it-collects read-out too); the frozen
+    skills keep their collection noise; the read-out with the new skill sampled still samples."""
+    import pytest
+
+    import tasks
+    from parallel_skills.config import FieldError, TrainConfig
+    from parallel_skills.train import make_actor
+
+    skills = [Skill.from_fn("noisy", lambda obs, key: jnp.full(3, 0.1))]
+    apply = lambda p, obs: (jnp.full(obs.shape[:-1] + (3,), 0.3), jnp.full(obs.shape[:-1] + (3,), 0.5))  # noqa: E731
+    make = lambda m: Actor(env=None, skill_set=SkillSet(skills), scheduler_apply=None, new_skill_apply=apply,  # noqa: E731
+                           skill_lengths=(1,), num_envs=4, skill_noise_std=0.3, new_skill_collects_mean=m)
+    obs, i = jnp.zeros((4, 2)), jnp.array([0, 1, 0, 1])
+    ka, ks = jax.random.split(jax.random.PRNGKey(0))
+    mean = np.asarray(make(True).actions(obs, obs, None, i, ka, ks, greedy=False))
+    sampled = np.asarray(make(False).actions(obs, obs, None, i, ka, ks, greedy=False))
+    np.testing.assert_allclose(mean[[1, 3]], 0.3, atol=1e-6)  # the new skill's mean
+    assert np.all(np.abs(sampled[[1, 3]] - 0.3) > 1e-4)  # (the paper: its sample)
+    np.testing.assert_array_equal(mean[[0, 2]], sampled[[0, 2]])  # frozen: the same noisy draws
+    assert np.all(np.abs(mean[[0, 2]] - 0.1) > 1e-4)
+    forced = np.asarray(make(True).actions(obs, obs, None, i, ka, ks, greedy=True, new_skill_sampled=True))
+    assert np.all(np.abs(forced[[1, 3]] - 0.3) > 1e-4)
+    env = tasks.make("lift")
+    config = TrainConfig(new_skill_collects="mean")
+    assert make_actor(env, [], config, 8, collecting=True).new_skill_collects_mean
+    assert make_actor(env, [], config, 8).new_skill_collects_mean
+    assert not make_actor(env, [], TrainConfig(), 8, collecting=True).new_skill_collects_mean
+    with pytest.raises(FieldError, match="new_skill_collects"):
+        TrainConfig(new_skill_collects="greedy")
+    with pytest.raises(ValueError, match="scheduler acts"):
+        TrainConfig(new_skill_collects="mean", method="scratch")
