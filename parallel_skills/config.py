@@ -35,7 +35,7 @@ POSITIVE_FIELDS = frozenset({
     "num_critics", "n_step", "num_timesteps", "episode_length", "checkpoint_every"})
 # Float fields that must lie in [0, 1] (every other float field must be finite), in any config class.
 UNIT_INTERVAL_FIELDS = frozenset({"target_tau", "mpo_alpha", "dagger_alpha", "skill_entropy_floor",
-                                  "length_entropy_floor", "greedy_env_fraction"})
+                                  "length_entropy_floor", "greedy_env_fraction", "policy_ema"})
 
 
 class FieldError(ValueError):
@@ -252,6 +252,11 @@ class NewSkillConfig:
     # did not make stack learn within 200k steps (docs/learning.md), so the default stays 1. The
     # ``parallel`` recipe takes 2 (docs/scaling.md: lift at 1,024 envs holds on every seed with them).
     num_critics: int = 1
+    # τ > 0 (beyond the paper): keep an exponential moving average of the policy's parameters,
+    # ema ← ema + τ·(θ − ema) after every update (Polyak averaging of the iterates), and evaluate
+    # it beside the online policy (``eval/new_skill_ema_*``, the same episodes). Training reads
+    # only the online policy, so a run is the same with or without it. 0: none kept.
+    policy_ema: float = 0.0
     # n-step TD targets for the critic (parallel_skills.nstep; the paper's learner trains on
     # trajectories of length 10, App. B.3). 1: one-step TD over single transitions (the layout and
     # numerics of runs from before this field). Uncorrected returns of the behaviour's next n steps.

@@ -100,7 +100,10 @@ def learner_step(state, grads, config, update_duals: bool, update_critic: bool =
                                               config.target_critic_period)
     if not update_critic:
         target_critic = state.target_critic_params
-    return state.replace(
+    ema = state.ema_policy_params
+    if ema is not None:  # (only the new skill keeps one: NewSkillConfig.policy_ema)
+        ema = optax.incremental_update(new_policy, ema, config.policy_ema)
+    return state.replace(ema_policy_params=ema,
         policy_params=new_policy, critic_params=new_critic,
         target_policy_params=target_policy, target_critic_params=target_critic,
         policy_opt_state=policy_opt_state, critic_opt_state=critic_opt_state,
@@ -173,6 +176,9 @@ class LearnerState:
     dual_params: Union[SchedulerDuals, NewSkillDuals]
     dual_opt_state: optax.OptState
     steps: jnp.ndarray  # int32 scalar: learner updates done.
+    # The new skill's moving average of ``policy_params`` (``NewSkillConfig.policy_ema`` > 0);
+    # None otherwise (no leaves: the state and its checkpoints are as without the field).
+    ema_policy_params: Optional[Params] = None
 
 
 def _learner_init(key, policy, critic, policy_inputs, critic_inputs, dual_params, config) -> LearnerState:
@@ -441,11 +447,13 @@ def make_new_skill_apply(action_size: int, config: NewSkillConfig
 
 def new_skill_learner_init(key: jax.Array, obs_size: int, action_size: int,
                            config: NewSkillConfig) -> LearnerState:
-    """Initial new-skill learner state (targets = copies of the online networks)."""
+    """Initial new-skill learner state (targets, and the moving average where
+    ``config.policy_ema`` > 0, = copies of the online networks)."""
     policy, critic = new_skill_networks(action_size, config)
     obs = jnp.zeros((1, obs_size), jnp.float32)
     act = jnp.zeros((1, action_size), jnp.float32)
-    return _learner_init(key, policy, critic, (obs,), (obs, act), NewSkillDuals.initial(config), config)
+    state = _learner_init(key, policy, critic, (obs,), (obs, act), NewSkillDuals.initial(config), config)
+    return state.replace(ema_policy_params=state.policy_params) if config.policy_ema > 0 else state
 
 
 class SkillMixture(NamedTuple):

@@ -312,7 +312,8 @@ def start_from_skill(new_skill: learners.LearnerState, skill: Skill):
     std = jnp.asarray(skill.params.obs_std, jnp.float32)
     # count 1 and m2 = std²: normalize() reproduces (obs − mean) / std exactly (std ≥ STD_FLOOR).
     normalizer = obs_norm.RunningStats(count=jnp.ones(()), mean=mean, m2=jnp.square(std))
-    return new_skill.replace(policy_params=policy, target_policy_params=policy), normalizer
+    ema = None if new_skill.ema_policy_params is None else policy
+    return new_skill.replace(policy_params=policy, target_policy_params=policy, ema_policy_params=ema), normalizer
 
 
 def make_policy_factory(action_size: int, config: TrainConfig, num_skills_total: int):
@@ -718,6 +719,10 @@ def make_evaluation(env, trainer: Trainer, episode_length: int, seed: int,
         # (device_get first: a multi-process run's arrays are global, this process reads its replica.)
         mean = lambda x: float(jnp.mean(jax.device_get(x)))  # noqa: E731
         out = {"eval/new_skill_success": mean(ev["success"]), "eval/new_skill_return": mean(ev["return"])}
+        if state.new_skill.ema_policy_params is not None:  # the moving average, on the same episodes (k1)
+            ev = evals.new_skill(state.new_skill.ema_policy_params, state.normalizer, k1)
+            out["eval/new_skill_ema_success"] = mean(ev["success"])
+            out["eval/new_skill_ema_return"] = mean(ev["return"])
         ev = evals.new_skill_sampled(state.new_skill.policy_params, state.normalizer, k4)
         out["eval/new_skill_sampled_success"] = mean(ev["success"])
         out["eval/new_skill_sampled_return"] = mean(ev["return"])

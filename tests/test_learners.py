@@ -380,3 +380,30 @@ def test_dpg_weight_moves_the_mean_up_the_critic_where_crr_follows_the_majority(
     assert ("q_at_mean" in metrics) == (dpg_weight > 0)
     mean, _ = make_new_skill_apply(A, cfg)(new_state.policy_params, batch.obs[:1])
     assert sign * float(mean[0, 0]) > 0.1, float(mean[0, 0])
+
+
+def test_new_skill_policy_ema_averages_the_iterates_and_nothing_else():
+    """``NewSkillConfig.policy_ema`` τ: after each update ema ← ema + τ·(θ − ema); τ = 0 keeps none
+    (no leaves, the state as without the field); the update of everything else is unchanged."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from parallel_skills import learners
+    from parallel_skills.config import NewSkillConfig
+
+    config = NewSkillConfig(hidden=(8,), policy_ema=0.25)
+    state = learners.new_skill_learner_init(jax.random.PRNGKey(0), 5, 2, config)
+    plain = learners.new_skill_learner_init(jax.random.PRNGKey(0), 5, 2, NewSkillConfig(hidden=(8,)))
+    assert plain.ema_policy_params is None
+    leaves = lambda t: len(jax.tree_util.tree_leaves(t))  # noqa: E731
+    assert leaves(state) == leaves(plain) + leaves(state.policy_params)
+    state = state.replace(ema_policy_params=jax.tree_util.tree_map(jnp.zeros_like, state.policy_params))
+    ones = lambda t: jax.tree_util.tree_map(jnp.ones_like, t)  # noqa: E731
+    grads = (ones(state.policy_params), ones(state.critic_params), ones(state.dual_params))
+    after = learners.learner_step(state, grads, config, update_duals=False)
+    after_plain = learners.learner_step(plain, grads, NewSkillConfig(hidden=(8,)), update_duals=False)
+    for e, p in zip(jax.tree_util.tree_leaves(after.ema_policy_params), jax.tree_util.tree_leaves(after.policy_params)):
+        np.testing.assert_allclose(e, 0.25 * p, rtol=1e-6)
+    for a, b in zip(jax.tree_util.tree_leaves(after.replace(ema_policy_params=None)), jax.tree_util.tree_leaves(after_plain)):
+        np.testing.assert_array_equal(a, b)

@@ -35,7 +35,9 @@ CSV_FIELDS = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skil
               # The new skill alone, each action the best of the mean and samples by its critic.
               "eval/new_skill_critic_weighted_success", "eval/new_skill_critic_weighted_return",
               # The greedy scheduler with the new skill's sampled actions (its mean: eval/scheduler_*).
-              "eval/scheduler_new_skill_sampled_success", "eval/scheduler_new_skill_sampled_return"]
+              "eval/scheduler_new_skill_sampled_success", "eval/scheduler_new_skill_sampled_return",
+              # The new skill's moving-average policy, mean actions (NewSkillConfig.policy_ema > 0).
+              "eval/new_skill_ema_success", "eval/new_skill_ema_return"]
 
 
 # Without --checkpoint_every: checkpoint at evaluations, but at most once a minute (a lift run on a
