@@ -131,9 +131,8 @@ class Actor:
         """Each env's action [B, A] from its running skill i [B]; collection noise (not greedy) on
         the frozen skills' actions, those whose ``Skill.collection_noise`` is set. The new skill's
         action is sampled from its Gaussian unless greedy or ``new_skill_collects_mean`` (then its
-        mean); ``new_skill_sampled``
-        overrides that choice (the greedy scheduler with the new skill as it collects). The
-        ``greedy_envs`` act as greedy in any case."""
+        mean); ``new_skill_sampled`` overrides that choice (the greedy scheduler with the new skill
+        sampled). The ``greedy_envs`` act as greedy in any case."""
         mean, std = self.new_skill_apply(new_params, nobs)
         sampled = (not greedy and not self.new_skill_collects_mean) if new_skill_sampled is None \
             else bool(new_skill_sampled)

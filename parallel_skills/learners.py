@@ -103,11 +103,11 @@ def learner_step(state, grads, config, update_duals: bool, update_critic: bool =
     ema = state.ema_policy_params
     if ema is not None:  # (only the new skill keeps one: NewSkillConfig.policy_ema)
         ema = optax.incremental_update(new_policy, ema, config.policy_ema)
-    return state.replace(ema_policy_params=ema,
+    return state.replace(
         policy_params=new_policy, critic_params=new_critic,
         target_policy_params=target_policy, target_critic_params=target_critic,
         policy_opt_state=policy_opt_state, critic_opt_state=critic_opt_state,
-        dual_params=new_dual, dual_opt_state=dual_opt_state, steps=steps)
+        dual_params=new_dual, dual_opt_state=dual_opt_state, steps=steps, ema_policy_params=ema)
 
 
 # The MPO dual variables (log-parameters; positive via ``hcmpo.positive``). Fields in alphabetical

@@ -426,8 +426,8 @@ def make_evaluators(env, trainer: Trainer, num_episodes: int, episode_length: in
         return evaluate
 
     def eval_scheduler_sampled(sched_params, critic_params, new_params, normalizer, key):
-        """The scheduler as it collects (sampled decisions, collection noise, the new skill's
-        sampled actions): per episode return, success, the discounted return Σ_t γ^t r_t of the
+        """The scheduler as it collects (sampled decisions, collection noise, the new skill as
+        ``TrainConfig.new_skill_collects`` says): per episode return, success, the discounted return Σ_t γ^t r_t of the
         first episode and the scheduler critic's value V(s_0) at its reset state."""
         k0, k1 = jax.random.split(key)
         gamma = trainer.config.scheduler.discount
