@@ -200,6 +200,7 @@ class SchedulerConfig:
 # states (the methods whose ``teacher_baseline`` it is pass them: ``methods``).
 BASELINE_READS_TEACHER = {"mpo": False, "kl_reg": True, "dagger": True}
 BASELINES = tuple(BASELINE_READS_TEACHER)
+N_STEP_RETURNS = ("behaviour", "own")  # NewSkillConfig.n_step_returns
 
 
 @dataclasses.dataclass(frozen=True)
@@ -261,6 +262,14 @@ class NewSkillConfig:
     # trajectories of length 10, App. B.3). 1: one-step TD over single transitions (the layout and
     # numerics of runs from before this field). Uncorrected returns of the behaviour's next n steps.
     n_step: int = 1
+    # Whose steps the n-step returns follow (n_step > 1): "behaviour" (Acme's uncorrected n-step:
+    # the next n steps, whichever skill the scheduler ran) or "own" (beyond the paper;
+    # nstep.own_nstep_fields): a return stops before the first later step another skill took and
+    # bootstraps there, so Q(s, a) values what the new skill itself does after a. With
+    # "behaviour", holding a cube over its target is credited with the release that the
+    # scheduler's next skill makes within n steps, so the new skill's critic does not rank
+    # releasing above holding (docs/skills.md).
+    n_step_returns: str = "behaviour"
     # α = 1: pure CRR; α < 1: loss = α·CRR + (1 − α)·L_baseline (App. B: every baseline shares
     # this mix and the paper sweeps α ∈ {0, 0.5, 1}).
     mpo_alpha: float = 1.0
@@ -293,6 +302,7 @@ class NewSkillConfig:
         check_choice("crr_mode", self.crr_mode, ("exp", "indicator"), "'exp' or 'indicator'")
         check_choice("crr_advantage", self.crr_advantage, ("mean", "max"), "'mean' or 'max'")
         check_choice("td_target_action", self.td_target_action, ("sampled", "mean"), "'sampled' or 'mean'")
+        check_choice("n_step_returns", self.n_step_returns, N_STEP_RETURNS, "'behaviour' or 'own'")
         check_choice("baseline", self.baseline, BASELINES, f"one of {', '.join(BASELINES)}")
         if self.dpg_weight < 0.0:
             raise FieldError("dpg_weight", "a non-negative number (0: pure CRR)", self.dpg_weight)

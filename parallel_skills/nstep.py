@@ -78,3 +78,20 @@ def execution_nstep_fields(window, n: int, gamma: float, boundary: jnp.ndarray) 
     needs no off-policy correction (the frozen skills' actions, noise included, are the option's
     own). Returns ``nstep_fields``' dict, ``nstep_steps`` = m [T, B] int32 included."""
     return nstep_fields(window.replace(done=window.done | boundary), n, gamma)
+
+
+def own_nstep_fields(window, n: int, gamma: float, new_skill_index: int) -> Dict[str, jnp.ndarray]:
+    """The new skill's n-step returns over its own steps only (``NewSkillConfig.n_step_returns``
+    "own"): ``nstep_fields`` whose returns also stop after a step whose *next* step another skill
+    took (``window.skill`` [W, B] ≠ ``new_skill_index``), bootstrapping there from Q'.
+
+    The first step's action may be anyone's (Q(s_t, a_t) is defined for any a_t); the steps after it
+    enter the return only while the new skill acts, so the target values what the new skill does
+    from s_{t+1} on, not what the scheduler's next skills do (Tree-backup's trace cut, Precup et al.
+    2000, with the traces 1 on the new skill's own steps and 0 on the others'). Where the behaviour
+    would soon release a held cube, the uncorrected return credits holding with that release; this
+    one credits holding with what the new skill itself does next. The window's last step has no
+    next step in it and never needs one (it only ends returns). Returns ``nstep_fields``' dict."""
+    other_next = window.skill[1:] != new_skill_index
+    cut = jnp.concatenate([other_next, jnp.zeros_like(other_next[:1])], axis=0)
+    return nstep_fields(window.replace(done=window.done | cut), n, gamma)

@@ -146,6 +146,10 @@ class Replay:
     augmentation: bool = True
     # NewSkillConfig.replay_window: > 0, the new skill's batches come from the rows inserted last.
     new_skill_window: int = 0
+    # NewSkillConfig.n_step_returns "own": the new skill's n-step returns stop before another
+    # skill's step (nstep.own_nstep_fields); None: the behaviour's next n steps. The value is the
+    # new skill's index N in ``Transition.skill``.
+    own_returns_index: Optional[int] = None
 
     @property
     def window(self) -> int:
@@ -190,7 +194,11 @@ class Replay:
             pending = jax.tree.map(lambda x: x[t:], window)
             head = jax.tree.map(lambda x: x[:t], window).one_step()
             first = lambda n: jax.tree.map(lambda x: x[:t + n - 1], window)  # noqa: E731  (t complete n-step returns)
-            fields = nstep.nstep_fields(first(self.n_step), self.n_step, self.discount)
+            if self.own_returns_index is None:
+                fields = nstep.nstep_fields(first(self.n_step), self.n_step, self.discount)
+            else:
+                fields = nstep.own_nstep_fields(first(self.n_step), self.n_step, self.discount,
+                                                self.own_returns_index)
             rows = NStepTransition(**head.fields(), **_nstep_row_fields(fields))
             if self.scheduler_n_step > 1:
                 sched = first(self.scheduler_n_step)

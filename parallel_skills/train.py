@@ -113,7 +113,9 @@ def greedy_env_count(fraction: float, num_envs: int) -> int:
     return int(round(float(fraction) * int(num_envs)))
 
 
-def make_replay(environment, config: TrainConfig) -> Replay:
+def make_replay(environment, config: TrainConfig, num_skills: int = 0) -> Replay:
+    """The run's replay; ``num_skills``: the frozen skills N (the new skill's index in
+    ``Transition.skill``, which ``NewSkillConfig.n_step_returns`` "own" reads)."""
     sc, nc = config.scheduler, config.new_skill
     capacity = max(int(config.replay_size), config.steps_per_iteration, sc.batch_size, nc.batch_size)
     # (The scheduler's n-step rows only where its learner runs: SkillS.)
@@ -123,7 +125,8 @@ def make_replay(environment, config: TrainConfig) -> Replay:
                   new_skill_batch_size=nc.batch_size, n_step=int(nc.n_step), discount=nc.discount,
                   scheduler_n_step=sched_n, scheduler_discount=sc.discount,
                   skill_lengths=tuple(sc.skill_lengths), augmentation=bool(sc.augmentation),
-                  new_skill_window=int(nc.replay_window))
+                  new_skill_window=int(nc.replay_window),
+                  own_returns_index=int(num_skills) if nc.n_step_returns == "own" else None)
 
 
 def run_learner(update, sample, config, state, key, num_updates: int, ready):
@@ -187,7 +190,7 @@ def make_trainer(environment, skills: Sequence[Skill], config: TrainConfig, mesh
     n_sched = updates_per_iteration(sc.samples_per_insert, steps_per_iter, sc.batch_size)
     n_new = updates_per_iteration(nc.samples_per_insert, steps_per_iter, nc.batch_size)
     actor = make_actor(environment, skills, config, config.num_envs, collecting=True)
-    replay = make_replay(environment, config)
+    replay = make_replay(environment, config, len(skills))
 
     # A teacher baseline (kl_reg / dagger): the new skill's loss reads the frozen skills' actions at
     # its batch's states; the mixture learner (rhpo) at its states and next states (the components).

@@ -11,7 +11,7 @@ from flax import struct
 
 import tasks
 from parallel_skills import NewSkillConfig, SchedulerConfig, Skill, TrainConfig
-from parallel_skills.nstep import nstep_fields
+from parallel_skills.nstep import nstep_fields, own_nstep_fields
 from parallel_skills.train import make_trainer
 from tasks.manipulation import scripted
 
@@ -29,12 +29,18 @@ class Window:
     weight: jax.Array
 
 
+@struct.dataclass
+class SkillWindow(Window):
+    skill: jax.Array
+
+
 def _fields(window, n, gamma):
     return jax.jit(nstep_fields, static_argnums=(1, 2))(Window(**window), n, gamma)
 
 
-def _reference(window, n, gamma):
-    """Plain loop over (t, b): walk forward until n steps or the episode's end."""
+def _reference(window, n, gamma, own_index=None):
+    """Plain loop over (t, b): walk forward until n steps or the episode's end (``own_index``: or
+    until the next step is another skill's than ``window["skill"] == own_index``)."""
     w, b = window["reward"].shape
     t_out = w - n + 1
     out = {k: [] for k in ("nstep_reward", "nstep_discount", "nstep_next_obs", "nstep_weight")}
@@ -48,6 +54,8 @@ def _reference(window, n, gamma):
                 wt *= window["weight"][s, e]
                 last = s
                 if window["done"][s, e]:
+                    break
+                if own_index is not None and s + 1 < w and window["skill"][s + 1, e] != own_index:
                     break
             m = last - t + 1
             row["nstep_reward"].append(ret)
@@ -80,6 +88,26 @@ def test_nstep_fields_match_a_plain_loop(n):
         np.testing.assert_array_equal(got["nstep_next_obs"], window["next_obs"])
 
 
+@pytest.mark.parametrize("n", [1, 3, 5])
+def test_own_nstep_fields_stop_before_another_skills_step(n):
+    """``own_nstep_fields``: the return of step t takes step t whoever acted, then steps t + j only
+    while the new skill (index 2 here) took them; it bootstraps where another skill's step is next."""
+    rng = np.random.default_rng(10 + n)
+    window = _random_window(rng, w=12 + n - 1, b=6)
+    window["skill"] = rng.integers(0, 3, size=window["reward"].shape).astype(np.int32)
+    fn = jax.jit(own_nstep_fields, static_argnums=(1, 2, 3))
+    got = jax.device_get(fn(SkillWindow(**{k: jnp.asarray(v) for k, v in window.items()}), n, GAMMA, 2))
+    want = _reference(window, n, GAMMA, own_index=2)
+    for k in want:
+        np.testing.assert_allclose(got[k], want[k], rtol=1e-5, atol=1e-6, err_msg=k)
+    behaviour = _reference(window, n, GAMMA)
+    if n > 1:  # the cut changed some returns, and none where the new skill took every step
+        assert not np.allclose(want["nstep_reward"], behaviour["nstep_reward"])
+    all_new = dict(window, skill=np.full_like(window["skill"], 2))
+    got_all = jax.device_get(fn(SkillWindow(**{k: jnp.asarray(v) for k, v in all_new.items()}), n, GAMMA, 2))
+    np.testing.assert_allclose(got_all["nstep_reward"], behaviour["nstep_reward"], rtol=1e-5, atol=1e-6)
+
+
 def test_nstep_return_stops_at_termination_and_bootstraps_after_truncation():
     n = 4
     z = np.zeros((n, 1), np.float32)
@@ -99,14 +127,17 @@ def test_nstep_return_stops_at_termination_and_bootstraps_after_truncation():
     assert float(term["nstep_reward"][0, 0]) == 2.0 and float(term["nstep_discount"][0, 0]) == 0.0
 
 
-def test_collector_inserts_nstep_transitions_late_and_across_unrolls():
+@pytest.mark.parametrize("returns", ["behaviour", "own"])
+def test_collector_inserts_nstep_transitions_late_and_across_unrolls(returns):
     """The replay's new-skill fields are the n-step returns of the collected stream: recompute them
-    from the trajectories of three unrolls (episodes of 7 steps end inside unrolls of 5)."""
+    from the trajectories of three unrolls (episodes of 7 steps end inside unrolls of 5); with
+    ``n_step_returns`` "own", returns that stop before the frozen skill's steps (index 0; the new
+    skill is index 1)."""
     n, b, t = 3, 4, 5
     cfg = TrainConfig(
         num_envs=b, unroll_length=t, replay_size=1000,
         scheduler=SchedulerConfig(skill_lengths=(2, 3), hidden=(16,), critic_head_hidden=(8,)),
-        new_skill=NewSkillConfig(hidden=(16,), n_step=n, discount=GAMMA))
+        new_skill=NewSkillConfig(hidden=(16,), n_step=n, discount=GAMMA, n_step_returns=returns))
     env = tasks.make("lift", episode_length=7)
     trainer = make_trainer(env, [Skill.from_fn("reach_green", scripted.get("reach_green"))], cfg)
     state = jax.jit(trainer.init)(jax.random.PRNGKey(0))
@@ -116,7 +147,12 @@ def test_collector_inserts_nstep_transitions_late_and_across_unrolls():
         state, traj, stats = collect(state, jax.random.PRNGKey(u))
         trajs.append(jax.device_get(dict(vars(traj), done=stats.done)))
     stream = {k: np.concatenate([tr[k] for tr in trajs]) for k in trajs[0]}  # [3T, B, ...]
-    want = _reference(stream, n, GAMMA)  # steps 0 .. 3T − n
+    own = 1 if returns == "own" else None
+    want = _reference(stream, n, GAMMA, own_index=own)  # steps 0 .. 3T − n
+    if own is not None:  # both skills acted, so some returns were cut (sparse lift: no reward yet,
+        # the cut shows in the bootstrap's discount γ^(m−1) and state)
+        assert (stream["skill"] == 0).any() and (stream["skill"] == 1).any()
+        assert not np.allclose(want["nstep_discount"], _reference(stream, n, GAMMA)["nstep_discount"])
     # Replay rows: T·B per unroll, flattened (t, b); the first n − 1 rows of each env are placeholders.
     rows = jax.device_get(state.replay.experience)
     got = {k: v[0, :3 * t * b].reshape((3 * t, b) + v.shape[2:]) for k, v in vars(rows).items()}
