@@ -113,7 +113,7 @@ def greedy_env_count(fraction: float, num_envs: int) -> int:
     return int(round(float(fraction) * int(num_envs)))
 
 
-def make_replay(environment, config: TrainConfig, num_skills: int = 0) -> Replay:
+def make_replay(environment, config: TrainConfig, num_skills: int) -> Replay:
     """The run's replay; ``num_skills``: the frozen skills N (the new skill's index in
     ``Transition.skill``, which ``NewSkillConfig.n_step_returns`` "own" reads)."""
     sc, nc = config.scheduler, config.new_skill

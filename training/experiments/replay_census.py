@@ -44,7 +44,7 @@ def census(run, top: str, bottom: str, dim: int, key_seed: int = 0, chunk: int =
     from parallel_skills.train import make_replay
 
     cfg = run.config.new_skill
-    replay = make_replay(run.env, run.config)
+    replay = make_replay(run.env, run.config, len(run.skills))
     exp = run.state.replay.experience
     size = int(replay.size(run.state.replay))
     obs = np.asarray(exp.obs).reshape(-1, exp.obs.shape[-1])[:size]
