@@ -3,6 +3,7 @@ docs/results/paper_runs/<task>/ (training.experiments.results), each number of a
 table that names a docs/results file is in that file, and nothing under docs/results/ holds a path
 of the machine that produced it."""
 
+import json
 import os
 import re
 import shutil
@@ -97,3 +98,34 @@ def test_results_cli_bad_input_is_one_line(tmp_path, capsys):
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not a directory" in err[0]
+
+
+# A shipped config that the docs recommend -> the archived runs whose results they quote for it.
+SHIPPED_CONFIGS = {
+    "stack_learned_skills.json": "stack/library_useful-replay_size=100000-td_target_action=mean-"
+                                 "new_skill_collects=mean-n_step_returns=own-greedy_env_fraction=0.125",
+}
+
+
+def _leaves(tree, prefix=()):
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            yield from _leaves(value, prefix + (key,))
+        else:
+            yield prefix + (key,), value
+
+
+@pytest.mark.parametrize("name", sorted(SHIPPED_CONFIGS))
+def test_a_shipped_config_is_the_setting_of_the_runs_behind_it(name):
+    """Every field the shipped file sets has the same value in each archived run's train config."""
+    shipped = json.load(open(os.path.join(ROOT, "training", "configs", name), encoding="utf-8"))
+    variant = os.path.join(ARCHIVE, SHIPPED_CONFIGS[name])
+    seeds = sorted(d for d in os.listdir(variant) if d.startswith("s"))
+    assert len(seeds) >= 3, f"{variant}: {seeds}"
+    for seed in seeds:
+        run = json.load(open(os.path.join(variant, seed, "config.json"), encoding="utf-8"))["train_config"]
+        for path, value in _leaves(shipped):
+            got = run
+            for key in path:
+                got = got[key]
+            assert got == value, f"{name}: {'.'.join(path)}={value!r}, run {seed} has {got!r}"
