@@ -10,6 +10,7 @@ import shutil
 
 import pytest
 
+from parallel_skills import config
 from training.experiments import results
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -107,25 +108,18 @@ SHIPPED_CONFIGS = {
 }
 
 
-def _leaves(tree, prefix=()):
-    for key, value in tree.items():
-        if isinstance(value, dict):
-            yield from _leaves(value, prefix + (key,))
-        else:
-            yield prefix + (key,), value
-
-
 @pytest.mark.parametrize("name", sorted(SHIPPED_CONFIGS))
 def test_a_shipped_config_is_the_setting_of_the_runs_behind_it(name):
     """Every field the shipped file sets has the same value in each archived run's train config."""
-    shipped = json.load(open(os.path.join(ROOT, "training", "configs", name), encoding="utf-8"))
+    path = os.path.join(ROOT, "training", "configs", name)
+    data = json.load(open(path, encoding="utf-8"))
+    shipped = config.from_dict(config.TrainConfig(), data, path)  # read as --config reads it
     variant = os.path.join(ARCHIVE, SHIPPED_CONFIGS[name])
     seeds = sorted(d for d in os.listdir(variant) if d.startswith("s"))
     assert len(seeds) >= 3, f"{variant}: {seeds}"
     for seed in seeds:
-        run = json.load(open(os.path.join(variant, seed, "config.json"), encoding="utf-8"))["train_config"]
-        for path, value in _leaves(shipped):
-            got = run
-            for key in path:
-                got = got[key]
-            assert got == value, f"{name}: {'.'.join(path)}={value!r}, run {seed} has {got!r}"
+        where = os.path.join(variant, seed, "config.json")
+        run = config.from_dict(config.TrainConfig(), json.load(open(where, encoding="utf-8"))["train_config"], where)
+        for field in config.dotted_names(data):
+            want, got = config.dotted_value(shipped, field), config.dotted_value(run, field)
+            assert got == want, f"{name}: {field}={want!r}, run {seed} has {got!r}"
