@@ -34,8 +34,7 @@ POSITIVE_FIELDS = frozenset({
     "target_actor_period", "target_critic_period", "num_action_samples", "mpo_num_samples",
     "num_critics", "n_step", "num_timesteps", "episode_length", "checkpoint_every"})
 # Float fields that must lie in [0, 1] (every other float field must be finite), in any config class.
-UNIT_INTERVAL_FIELDS = frozenset({"target_tau", "mpo_alpha", "dagger_alpha", "skill_entropy_floor",
-                                  "length_entropy_floor", "greedy_env_fraction", "policy_ema"})
+UNIT_INTERVAL_FIELDS = frozenset({"mpo_alpha", "dagger_alpha", "greedy_env_fraction", "policy_ema"})
 
 
 class FieldError(ValueError):
@@ -140,10 +139,6 @@ class SchedulerConfig:
     samples_per_insert: float = 100.0
     target_actor_period: int = 100
     target_critic_period: int = 25
-    # 0: target networks are hard copies every target_*_period updates (the paper). τ in (0, 1]:
-    # Polyak averaging after every update, θ' ← τ·θ + (1 − τ)·θ' (FastTD3: 0.1); the periods are
-    # then unused.
-    target_tau: float = 0.0
     epsilon: float = 0.1  # E-step KL bound (temperature dual).
     epsilon_kl: float = 5e-3  # M-step categorical KL(π_old ‖ π) trust region.
     discount: float = 0.99
@@ -166,17 +161,6 @@ class SchedulerConfig:
     # Learner updates during which only the critic learns (policy and duals frozen): lets the
     # long-horizon values of Eq. 3 propagate before policy improvement starts (0 = paper).
     policy_warmup_updates: int = 0
-    # A floor on the exploration of the skill choice (beyond the paper): the mean entropy of π(i|s)
-    # over decision states is kept ≥ this fraction of its maximum, ln(number of choosable skills),
-    # by a Lagrange multiplier on the M-step (hcmpo.entropy_floor_loss, a dual like SAC's target
-    # entropy): where the critic's values are flat, MPO's E-step still moves the policy by ε per
-    # update and its choices collapse before any sequence is found. 0: no floor (the paper).
-    skill_entropy_floor: float = 0.0
-    init_log_entropy_weight: float = -5.0  # its multiplier starts at softplus(−5) ≈ 0.007
-    # The same floor on the length choice (beyond the paper): the mean entropy of π(k|s) at decision
-    # states kept ≥ this fraction of ln(len(skill_lengths)), by its own multiplier (which starts at
-    # init_log_entropy_weight). 0: no floor (the paper).
-    length_entropy_floor: float = 0.0
 
     def __post_init__(self):
         check_fields(self)
@@ -214,24 +198,10 @@ class NewSkillConfig:
     samples_per_insert: float = 50.0
     target_actor_period: int = 25
     target_critic_period: int = 100
-    target_tau: float = 0.0  # as SchedulerConfig.target_tau
     discount: float = 0.99
     crr_mode: str = "exp"  # "exp": min(exp(A/β), clip); "indicator": 1[A > 0].
-    # CRR's baseline V̂(s) in A = Q(s, a) − V̂(s) over the J samples a_j ~ π: "mean" (the paper's
-    # CRR) or "max" (Wang et al.'s max estimator; with "indicator": binary max, only stored actions
-    # better than every sample are fitted). With "exp" the baseline cancels between a state's
-    # actions (it only moves the clip).
-    crr_advantage: str = "mean"
     crr_beta: float = 1.0
     crr_clip: float = 20.0
-    # λ ≥ 0 (beyond the paper): policy loss += −λ·mean_b min_e Q_e(s_b, μ(s_b)), the deterministic
-    # policy gradient (Silver et al. 2014; TD3+BC's form, Fujimoto & Gu 2021) on the Gaussian's mean
-    # through the critic (its parameters held). CRR fits the mean to the stored actions' weighted
-    # average, which the majority of a state's actions sets whatever their advantage (a hold over
-    # the target, docs/skills.md); this term moves the mean up the critic's slope by about
-    # λ·∂Q/∂a·σ²/f̄ where the data leave it uncertain (wide σ) and little where they do not.
-    # 0: pure CRR (the paper's).
-    dpg_weight: float = 0.0
     num_action_samples: int = 4  # J: samples for the CRR baseline and the TD target.
     # The action at s' in the critic's TD target: "sampled" (the paper's CRR: the mean of Q' over J
     # actions of the target policy, so Q values the Gaussian as it acts) or "mean" (beyond the paper:
@@ -240,12 +210,6 @@ class NewSkillConfig:
     # target) is valued as the sampled policy that leaves it on its noise, so dwelling costs only
     # discount and CRR's weights cannot single out the one leaving step (docs/skills.md).
     td_target_action: str = "sampled"
-    # 0: the new skill samples its batches from the whole buffer (the paper's). N > 0 (beyond the
-    # paper): from the N rows inserted last (at most the buffer's), while the scheduler keeps the
-    # whole buffer. CRR's mean settles at the weighted average of the actions its batches hold, a
-    # fixed point of the policy and its own data; the older the data, the more it holds the
-    # actions of earlier policies (docs/skills.md: the holds over the target).
-    replay_window: int = 0
     # > 1: clipped double Q (Fujimoto et al. 2018): independent critics, the TD target and the CRR
     # advantage use their minimum. With one critic (CRR as in the paper) the new skill's Q drifted
     # above any achievable return on sparse stack (114 > r_max/(1-γ) = 100 at rewarded replay
@@ -254,9 +218,12 @@ class NewSkillConfig:
     # ``parallel`` recipe takes 2 (docs/scaling.md: lift at 1,024 envs holds on every seed with them).
     num_critics: int = 1
     # τ > 0 (beyond the paper): keep an exponential moving average of the policy's parameters,
-    # ema ← ema + τ·(θ − ema) after every update (Polyak averaging of the iterates), and evaluate
-    # it beside the online policy (``eval/new_skill_ema_*``, the same episodes). Training reads
-    # only the online policy, so a run is the same with or without it. 0: none kept.
+    # ema ← ema + τ·(θ − ema) after every update (Polyak averaging of the iterates), and deploy it:
+    # it is the new skill that evaluations report (``eval/new_skill_*``; the online policy beside it
+    # as ``eval/new_skill_online_*``, the same episodes), that the greedy scheduler runs, and that
+    # new_skill.npz / export.npz hold (``LearnerState.deployed_policy_params``). Training (acting,
+    # targets, losses) reads only the online policy, so a run trains the same with or without it.
+    # 0: none kept.
     policy_ema: float = 0.0
     # n-step TD targets for the critic (parallel_skills.nstep; the paper's learner trains on
     # trajectories of length 10, App. B.3). 1: one-step TD over single transitions (the layout and
@@ -300,12 +267,9 @@ class NewSkillConfig:
     def __post_init__(self):
         check_fields(self)
         check_choice("crr_mode", self.crr_mode, ("exp", "indicator"), "'exp' or 'indicator'")
-        check_choice("crr_advantage", self.crr_advantage, ("mean", "max"), "'mean' or 'max'")
         check_choice("td_target_action", self.td_target_action, ("sampled", "mean"), "'sampled' or 'mean'")
         check_choice("n_step_returns", self.n_step_returns, N_STEP_RETURNS, "'behaviour' or 'own'")
         check_choice("baseline", self.baseline, BASELINES, f"one of {', '.join(BASELINES)}")
-        if self.dpg_weight < 0.0:
-            raise FieldError("dpg_weight", "a non-negative number (0: pure CRR)", self.dpg_weight)
 
     @property
     def reads_teacher(self) -> bool:
@@ -334,6 +298,11 @@ class TrainConfig:
     method: str = "skills"
     eval_episodes: int = 16
     eval_every: int = 20  # iterations between evaluations
+    # What an evaluation reads out: False, the new skill alone (mean actions: what is deployed and
+    # exported; and its sampled actions) and the greedy scheduler; True, also the diagnostics: the
+    # new skill through its own critic (critic-weighted), the greedy scheduler with the new skill's
+    # actions sampled, and the scheduler as it collects with its critic's value at the resets.
+    eval_diagnostics: bool = False
     # Std of Gaussian noise added to the frozen skills' actions while collecting (not in
     # evaluation). The paper's skills are stochastic Gaussian policies; deterministic (e.g.
     # scripted) skills give the new skill no data off their exact paths to learn recovery

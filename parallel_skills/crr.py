@@ -1,8 +1,8 @@
 """Critic Regularized Regression for the new skill (Wang et al. 2020; paper §4.2;
 docs/design.md "New skill").
 
-Policy loss −E[f(A)·log π(a|s)] with A(s, a) = Q(s, a) − mean_j Q(s, a_j), a_j ~ π(.|s)
-(or − max_j: CRR's max estimator), f = min(exp(A/β), clip) ("exp") or 1[A > 0] ("indicator").
+Policy loss −E[f(A)·log π(a|s)] with A(s, a) = Q(s, a) − mean_j Q(s, a_j), a_j ~ π(.|s),
+f = min(exp(A/β), clip) ("exp") or 1[A > 0] ("indicator").
 The critic Q(s, a) is learnt by TD with the new skill as target policy. ``critic_weighted_action``:
 the new skill read out through its critic at evaluation (CRR's critic-weighted policy, argmax form).
 """
@@ -17,21 +17,10 @@ import jax.numpy as jnp
 from parallel_skills import networks
 
 
-ADVANTAGE_ESTIMATORS = ("mean", "max")
-
-
-def crr_advantage(q_taken: jnp.ndarray, q_sampled: jnp.ndarray, estimator: str = "mean") -> jnp.ndarray:
-    """A(s, a) = Q(s, a) − V̂(s), a_j ~ π(.|s) (CRR, Wang et al. 2020, Eq. 3): V̂ = (1/J)·Σ_j Q(s, a_j)
-    ("mean") or max_j Q(s, a_j) ("max": with the indicator filter only actions better than every
-    sample pass, CRR's "binary max"). ``estimator`` is static. q_taken [B], q_sampled [B, J] -> [B]
-    (stop-gradient)."""
-    if estimator == "mean":
-        baseline = jnp.mean(q_sampled, axis=-1)
-    elif estimator == "max":
-        baseline = jnp.max(q_sampled, axis=-1)
-    else:
-        raise ValueError(f"unknown CRR advantage estimator {estimator!r}; valid: {', '.join(ADVANTAGE_ESTIMATORS)}")
-    return jax.lax.stop_gradient(q_taken - baseline)
+def mean_baseline_advantage(q_taken: jnp.ndarray, q_sampled: jnp.ndarray) -> jnp.ndarray:
+    """A(s, a) = Q(s, a) − V̂(s), V̂(s) = (1/J)·Σ_j Q(s, a_j), a_j ~ π(.|s) (CRR, Wang et al. 2020,
+    Eq. 3, its mean estimator). q_taken [B], q_sampled [B, J] -> [B] (stop-gradient)."""
+    return jax.lax.stop_gradient(q_taken - jnp.mean(q_sampled, axis=-1))
 
 
 def crr_weights(advantage: jnp.ndarray, mode: str = "exp", beta: float = 1.0,

@@ -150,27 +150,3 @@ def m_step_loss(
     loss_kl = jax.lax.stop_gradient(alpha) * mean_kl
     loss_alpha = has_rows * alpha * (epsilon_kl - jax.lax.stop_gradient(mean_kl))
     return mean_ce + loss_kl + loss_alpha, mean_kl
-
-
-def entropy_floor_loss(entropy: jnp.ndarray, weight: jnp.ndarray, floor: float,
-                       mask: jnp.ndarray) -> jnp.ndarray:
-    """A floor on the policy's mean entropy (beyond the paper; ``SchedulerConfig.skill_entropy_floor``),
-    as a Lagrange multiplier β ≥ 0 (the dual of SAC's target entropy):
-
-        L = −sg(β)·H̄ + β·sg(H̄ − H_min),   H̄ = mean_{s: mask} H(π(.|s)),
-
-    so the policy is pushed towards more entropy with weight β, and β grows while H̄ < H_min and
-    shrinks towards 0 above it.
-
-    Args:
-      entropy: [B] H(π(.|s)) of the online policy (differentiable).
-      weight: scalar β > 0 (differentiable).
-      floor: H_min (nats).
-      mask: [B] weights (decision rows).
-
-    Returns:
-      scalar (0 when Σ mask == 0).
-    """
-    mean_h = masked_mean(entropy, mask)
-    has_rows = (jnp.sum(mask) > 0).astype(entropy.dtype)
-    return has_rows * (-jax.lax.stop_gradient(weight) * mean_h + weight * jax.lax.stop_gradient(mean_h - floor))

@@ -28,13 +28,11 @@ Acme's MPO learner. Batches are ``replay.Transition`` rows; both learners share 
 ``LearnerState``.
 
 Target networks are hard copies every ``target_actor_period`` / ``target_critic_period``
-learner steps (``optax.periodic_update``; after update n (1-based), copied when n % period == 0),
-or, with ``target_tau`` > 0, Polyak averages updated after every step (``optax.incremental_update``).
+learner steps (``optax.periodic_update``; after update n (1-based), copied when n % period == 0).
 """
 
 from __future__ import annotations
 
-import math
 from typing import Callable, Dict, NamedTuple, Optional, Tuple, Union
 
 import flax
@@ -46,9 +44,9 @@ from parallel_skills.augmentation import augment_batch
 from parallel_skills.baseline_losses import (dagger_cross_entropy, kl_reg_mpo_loss, mixture_log_prob, prior_e_step,
                                              sample_mixture)
 from parallel_skills.config import NewSkillConfig, SchedulerConfig
-from parallel_skills.crr import crr_advantage, crr_policy_loss, crr_weights, td_target
-from parallel_skills.hcmpo import (critic_target, e_step_weights, entropy_floor_loss, m_step_loss, masked_mean,
-                                   positive, temperature_dual_loss)
+from parallel_skills.crr import crr_policy_loss, crr_weights, mean_baseline_advantage, td_target
+from parallel_skills.hcmpo import (critic_target, e_step_weights, m_step_loss, masked_mean, positive,
+                                   temperature_dual_loss)
 from parallel_skills.mpo import gaussian_mpo_loss
 from parallel_skills.networks import (GaussianPolicy, QCritic, QEnsemble, SchedulerCritic, SchedulerPolicy,
                                       categorical_entropy, gaussian_log_prob, pair_values, read_pairs,
@@ -90,14 +88,9 @@ def learner_step(state, grads, config, update_duals: bool, update_critic: bool =
     else:
         new_dual, dual_opt_state = state.dual_params, state.dual_opt_state
     steps = state.steps + 1
-    if config.target_tau > 0:  # Polyak averaging after every update
-        target_policy = optax.incremental_update(new_policy, state.target_policy_params, config.target_tau)
-        target_critic = optax.incremental_update(new_critic, state.target_critic_params, config.target_tau)
-    else:  # hard copies every period (the paper)
-        target_policy = optax.periodic_update(new_policy, state.target_policy_params, steps,
-                                              config.target_actor_period)
-        target_critic = optax.periodic_update(new_critic, state.target_critic_params, steps,
-                                              config.target_critic_period)
+    # Hard copies every period (the paper).
+    target_policy = optax.periodic_update(new_policy, state.target_policy_params, steps, config.target_actor_period)
+    target_critic = optax.periodic_update(new_critic, state.target_critic_params, steps, config.target_critic_period)
     if not update_critic:
         target_critic = state.target_critic_params
     ema = state.ema_policy_params
@@ -114,37 +107,15 @@ def learner_step(state, grads, config, update_duals: bool, update_critic: bool =
 # order: the leaves flatten in the order of the dicts they replace, and a checkpoint names them alike.
 @flax.struct.dataclass
 class SchedulerDuals:
-    """The scheduler's duals: the E-step temperature η and the M-step KL multiplier α (Eq. 4); with
-    ``SchedulerConfig.skill_entropy_floor`` > 0 also the floor's multiplier β, with
-    ``length_entropy_floor`` > 0 the length floor's (None otherwise: the state, and a checkpoint of
-    it, has the leaves it had before the floors existed)."""
+    """The scheduler's duals: the E-step temperature η and the M-step KL multiplier α (Eq. 4)."""
 
     log_alpha: jax.Array
     log_temperature: jax.Array
-    log_entropy_weight: Optional[jax.Array] = None
-    log_length_entropy_weight: Optional[jax.Array] = None
 
     @classmethod
     def initial(cls, config: SchedulerConfig) -> "SchedulerDuals":
-        def beta(floor):
-            return jnp.asarray(config.init_log_entropy_weight, jnp.float32) if floor > 0 else None
-
         return cls(log_alpha=jnp.asarray(config.init_log_alpha, jnp.float32),
-                   log_temperature=jnp.asarray(config.init_log_temperature, jnp.float32),
-                   log_entropy_weight=beta(config.skill_entropy_floor),
-                   log_length_entropy_weight=beta(config.length_entropy_floor))
-
-
-def skill_entropy_floor_nats(num_skills_total: int, config: SchedulerConfig) -> float:
-    """H_min of ``SchedulerConfig.skill_entropy_floor``: the fraction of ln(choosable skills) (the new
-    skill counts unless ``new_skill_choice`` is False)."""
-    choosable = num_skills_total - (0 if config.new_skill_choice else 1)
-    return float(config.skill_entropy_floor) * math.log(max(choosable, 1))
-
-
-def length_entropy_floor_nats(config: SchedulerConfig) -> float:
-    """H_min of ``SchedulerConfig.length_entropy_floor``: the fraction of ln(len(skill_lengths))."""
-    return float(config.length_entropy_floor) * math.log(config.num_lengths)
+                   log_temperature=jnp.asarray(config.init_log_temperature, jnp.float32))
 
 
 @flax.struct.dataclass
@@ -179,6 +150,12 @@ class LearnerState:
     # The new skill's moving average of ``policy_params`` (``NewSkillConfig.policy_ema`` > 0);
     # None otherwise (no leaves: the state and its checkpoints are as without the field).
     ema_policy_params: Optional[Params] = None
+
+    @property
+    def deployed_policy_params(self) -> Params:
+        """The policy a run evaluates, exports and ships: the moving average where one is kept
+        (``NewSkillConfig.policy_ema``), else the online policy (which acts while collecting)."""
+        return self.policy_params if self.ema_policy_params is None else self.ema_policy_params
 
 
 def _learner_init(key, policy, critic, policy_inputs, critic_inputs, dual_params, config) -> LearnerState:
@@ -255,8 +232,6 @@ class SchedulerAux(NamedTuple):
     policy_loss: jax.Array
     logits_i: jax.Array
     logits_k: jax.Array
-    entropy_weight: jax.Array  # β of the entropy floor (0 without one)
-    length_entropy_weight: Optional[jax.Array] = None  # the length floor's β (None without one)
 
 
 def _skill_lengths(config: SchedulerConfig) -> jax.Array:
@@ -349,20 +324,9 @@ def scheduler_loss(params, steps, batch: Transition, labels: SchedulerLabels, ta
     li, lk = policy.apply(policy_params, batch.obs)
     log_probs = joint_log_probs(li, lk)
     loss_m, kl = m_step_loss(log_probs, weights, targets.log_prior, alpha, config.epsilon_kl, dmask)
-    entropy_weight = jnp.zeros(())
-    if config.skill_entropy_floor > 0:  # beyond the paper: a floor on H(π(i|s)) (hcmpo.entropy_floor_loss)
-        entropy_weight = positive(dual_params.log_entropy_weight)
-        loss_m = loss_m + entropy_floor_loss(categorical_entropy(li), entropy_weight,
-                                             skill_entropy_floor_nats(li.shape[-1], config), dmask)
-    length_entropy_weight = None
-    if config.length_entropy_floor > 0:  # the same floor on H(π(k|s))
-        length_entropy_weight = positive(dual_params.log_length_entropy_weight)
-        loss_m = loss_m + entropy_floor_loss(categorical_entropy(lk), length_entropy_weight,
-                                             length_entropy_floor_nats(config), dmask)
     policy_loss = (loss_m + loss_temperature) * (steps >= config.policy_warmup_updates)
     aux = SchedulerAux(critic_loss=critic_loss, q=q, temperature=temperature, alpha=alpha, kl=kl,
-                       policy_loss=policy_loss, logits_i=li, logits_k=lk, entropy_weight=entropy_weight,
-                       length_entropy_weight=length_entropy_weight)
+                       policy_loss=policy_loss, logits_i=li, logits_k=lk)
     return critic_loss + policy_loss, aux
 
 
@@ -382,9 +346,6 @@ def scheduler_stats(aux: SchedulerAux, labels: SchedulerLabels) -> Dict[str, jax
         policy_entropy_i=masked_mean(categorical_entropy(aux.logits_i)[:, None], weight),
         policy_entropy_k=masked_mean(categorical_entropy(aux.logits_k)[:, None], weight),
         decision_fraction=jnp.sum(dmask) / jnp.maximum(jnp.sum(weight), 1.0),
-        entropy_weight=aux.entropy_weight,
-        # Only with SchedulerConfig.length_entropy_floor > 0 (the default runs' columns are unchanged).
-        **({} if aux.length_entropy_weight is None else dict(length_entropy_weight=aux.length_entropy_weight)),
     )
 
 
@@ -482,7 +443,6 @@ class NewSkillAux(NamedTuple):
     std: jax.Array  # [B, A] the policy's std at s
     policy_loss: jax.Array
     mpo: Dict[str, jax.Array]  # mpo_kl_mean, mpo_kl_std, mpo_temperature (MPO mix only)
-    q_at_mean: jax.Array  # [B] min_e Q_e(s, μ(s)) (dpg_weight > 0 only, else [0])
 
 
 def tile_obs(x, n: int):
@@ -530,7 +490,7 @@ def new_skill_loss(params, batch: Transition, targets: NewSkillTargets, networks
                    config: NewSkillConfig, teacher: Optional[SkillMixture] = None) -> Tuple[jax.Array, NewSkillAux]:
     """Critics: Σ_e 0.5·(Q_e(s, a) − y)² over weighted rows. Policy: CRR −f(A)·log π(a|s),
     A = min_e Q_e(s, a) − mean_j min_e Q_e(s, a_j), a_j ~ π(.|s); with mpo_alpha < 1,
-    α·CRR + (1 − α)·L_baseline (``baseline_policy_loss``); with dpg_weight λ > 0, + ``dpg_policy_loss``.
+    α·CRR + (1 − α)·L_baseline (``baseline_policy_loss``).
     ``params`` = (policy, critic, dual)."""
     policy_params, critic_params, dual_params = params
     policy, critic = networks
@@ -549,7 +509,7 @@ def new_skill_loss(params, batch: Transition, targets: NewSkillTargets, networks
     critic_loss = masked_mean(jnp.sum(0.5 * jnp.square(q - targets.y[:, None]), axis=-1), weight)
     q_all = jnp.min(q_ens, axis=-1)  # advantages from the clipped (minimum) estimate
     q_sg = jax.lax.stop_gradient(q_all)
-    advantage = crr_advantage(q_sg[:, 0], q_sg[:, 1:1 + j], config.crr_advantage)
+    advantage = mean_baseline_advantage(q_sg[:, 0], q_sg[:, 1:1 + j])
     w_crr = crr_weights(advantage, config.crr_mode, config.crr_beta, config.crr_clip)
     loss_crr = crr_policy_loss(gaussian_log_prob(mean, std, action), w_crr, weight)
     mpo_stats: Dict[str, jax.Array] = {}
@@ -559,12 +519,8 @@ def new_skill_loss(params, batch: Transition, targets: NewSkillTargets, networks
         policy_loss = config.mpo_alpha * loss_crr + (1.0 - config.mpo_alpha) * loss_baseline
     else:
         policy_loss = loss_crr
-    q_at_mean = jnp.zeros((0,))
-    if config.dpg_weight > 0.0:  # the critic's slope at the mean (its parameters held)
-        q_at_mean = jnp.min(critic_values(critic, jax.lax.stop_gradient(critic_params), obs, mean), axis=-1)  # [B]
-        policy_loss = policy_loss + dpg_policy_loss(q_at_mean, weight, config.dpg_weight)
     aux = NewSkillAux(critic_loss=critic_loss, q=q_all[:, 0], advantage=advantage, crr_weight=w_crr, std=std,
-                      policy_loss=policy_loss, mpo=mpo_stats, q_at_mean=q_at_mean)
+                      policy_loss=policy_loss, mpo=mpo_stats)
     return critic_loss + policy_loss, aux
 
 
@@ -633,14 +589,6 @@ BASELINE_LOSSES = {
 }
 
 
-def dpg_policy_loss(q_at_mean: jnp.ndarray, weight: jnp.ndarray, dpg_weight: float) -> jnp.ndarray:
-    """−λ·mean_b Q(s_b, μ(s_b)) over weighted rows: the deterministic policy gradient (Silver et al.
-    2014) on the Gaussian's mean, added to CRR's loss when ``NewSkillConfig.dpg_weight`` λ > 0.
-    ``q_at_mean`` [B] from critic parameters held fixed, so the gradient reaches the mean only.
-    [B], [B] -> scalar."""
-    return -dpg_weight * masked_mean(q_at_mean, weight)
-
-
 def new_skill_stats(aux: NewSkillAux, batch: Transition) -> Dict[str, jax.Array]:
     """Scalars to log of one new-skill update."""
     weight = batch.weight
@@ -652,8 +600,6 @@ def new_skill_stats(aux: NewSkillAux, batch: Transition) -> Dict[str, jax.Array]
         advantage_mean=masked_mean(aux.advantage, weight),
         policy_loss=aux.policy_loss,
     )
-    if aux.q_at_mean.shape[0]:
-        stats["q_at_mean"] = masked_mean(aux.q_at_mean, weight)
     for name in ("mpo_kl_mean", "mpo_kl_std", "mpo_temperature", "kl_reg_ess", "dagger_cross_entropy"):
         if name in aux.mpo:
             stats[name] = aux.mpo[name]

@@ -60,11 +60,6 @@ class Method:
             cfg = dataclasses.replace(cfg, scheduler=dataclasses.replace(cfg.scheduler, skill_lengths=lengths))
             notes.append(f"method {self.name}: scheduler skill_lengths={lengths} "
                          "(its categorical chooses a component every step)")
-        if self.mixture_learner:  # the RHPO learner has its own targets and loss (``rhpo``)
-            ns = cfg.new_skill
-            if ns.dpg_weight > 0.0:
-                raise ValueError(f"method {self.name} learns the mixture with its own loss: new_skill.dpg_weight "
-                                 f"must be 0, got {ns.dpg_weight:g}")
         if self.mix_alpha is not None or self.teacher_baseline is not None:
             sub, changes = cfg.new_skill, {}
             if self.teacher_baseline is not None and sub.baseline != self.teacher_baseline:

@@ -144,8 +144,6 @@ class Replay:
     scheduler_discount: float = 0.99
     skill_lengths: tuple = (10,)
     augmentation: bool = True
-    # NewSkillConfig.replay_window: > 0, the new skill's batches come from the rows inserted last.
-    new_skill_window: int = 0
     # NewSkillConfig.n_step_returns "own": the new skill's n-step returns stop before another
     # skill's step (nstep.own_nstep_fields); None: the behaviour's next n steps. The value is the
     # new skill's index N in ``Transition.skill``.
@@ -245,10 +243,7 @@ class Replay:
         discount, next_obs and weight are the n-step ones. ``raw_obs``: returns (batch, (obs,
         next_obs)), the batch's observations before normalisation [batch, O] each, for what reads
         raw observations (the frozen skills)."""
-        if self.new_skill_window > 0:
-            rows = self.sample_recent(state, key, self.new_skill_batch_size, self.new_skill_window)
-        else:
-            rows = self._buffer(self.new_skill_batch_size).sample(state, key).experience
+        rows = self._buffer(self.new_skill_batch_size).sample(state, key).experience
         if self.n_step > 1 or self.scheduler_n_step > 1:  # (n_step 1: the n-step fields are the 1-step ones)
             raw = (rows.obs, rows.nstep_next_obs)
             rows = rows.replace(nstep_next_obs=obs_norm.normalize(normalizer, rows.nstep_next_obs))
@@ -257,15 +252,6 @@ class Replay:
             raw = (rows.obs, rows.next_obs)
             batch = _normalized(rows, normalizer)
         return (batch, raw) if raw_obs else batch
-
-    def sample_recent(self, state, key, batch_size: int, window: int):
-        """``batch_size`` rows drawn uniformly, with replacement, from the ``window`` rows inserted
-        last (all stored rows while fewer): the buffer's ring order, newest at ``current_index − 1``.
-        Returns the rows [batch_size, ...]."""
-        recent = jnp.maximum(jnp.minimum(self.size(state), window), 1)
-        back = jax.random.randint(key, (batch_size,), 0, recent)  # 0: the newest row
-        idx = (state.current_index - 1 - back) % self.capacity
-        return jax.tree.map(lambda x: x[0, idx], state.experience)
 
 
 def _nstep_row_fields(fields) -> dict:

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 
 from parallel_skills.baseline_losses import rhpo_components, rhpo_log_prob, rhpo_mpo_loss, sample_rhpo
 from parallel_skills.config import NewSkillConfig, SchedulerConfig
-from parallel_skills.crr import crr_advantage, crr_policy_loss, crr_weights, td_target
+from parallel_skills.crr import crr_policy_loss, crr_weights, mean_baseline_advantage, td_target
 from parallel_skills.hcmpo import masked_mean, positive
 from parallel_skills.learners import (LearnerState, SkillMixture, as_float32, tile_obs, critic_values,
                                       learner_step, new_skill_networks, scheduler_networks)
@@ -89,7 +89,7 @@ def rhpo_loss(params, batch: Transition, skills: SkillMixture, targets: RHPOTarg
     a_j = sg(_sample(logits, means, stds, key_crr, j))
     frozen_critic = sg(critic_params)
     q_j = jnp.min(critic_values(critic, frozen_critic, tile_obs(batch.obs, j), a_j), -1)  # [B, J]
-    advantage = crr_advantage(sg(jnp.min(q, -1)), q_j, config.crr_advantage)
+    advantage = mean_baseline_advantage(sg(jnp.min(q, -1)), q_j)
     w_crr = crr_weights(advantage, config.crr_mode, config.crr_beta, config.crr_clip)
     loss_crr = crr_policy_loss(rhpo_log_prob(logits, means, stds, batch.action), w_crr, weight)
     stats = {"critic_loss": critic_loss, "q_mean": masked_mean(jnp.min(q, -1), weight),

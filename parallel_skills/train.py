@@ -56,8 +56,9 @@ class TrainingState:
 
 @struct.dataclass
 class TrainedParams:
-    """What ``train`` returns of a run's networks: the new skill's and the scheduler's policy
-    variables (flax) and the observation statistics both normalise with."""
+    """What ``train`` returns of a run's networks: the new skill's (its deployed policy: the moving
+    average where ``NewSkillConfig.policy_ema`` keeps one) and the scheduler's policy variables
+    (flax) and the observation statistics both normalise with."""
 
     new_skill: Any
     scheduler: Any
@@ -65,7 +66,7 @@ class TrainedParams:
 
     @classmethod
     def of(cls, state: "TrainingState") -> "TrainedParams":
-        return cls(new_skill=state.new_skill.policy_params, scheduler=state.scheduler.policy_params,
+        return cls(new_skill=state.new_skill.deployed_policy_params, scheduler=state.scheduler.policy_params,
                    normalizer=state.normalizer)
 
     def new_skill_params(self) -> GaussianSkillParams:
@@ -125,7 +126,6 @@ def make_replay(environment, config: TrainConfig, num_skills: int) -> Replay:
                   new_skill_batch_size=nc.batch_size, n_step=int(nc.n_step), discount=nc.discount,
                   scheduler_n_step=sched_n, scheduler_discount=sc.discount,
                   skill_lengths=tuple(sc.skill_lengths), augmentation=bool(sc.augmentation),
-                  new_skill_window=int(nc.replay_window),
                   own_returns_index=int(num_skills) if nc.n_step_returns == "own" else None)
 
 
@@ -711,43 +711,52 @@ def make_evaluation(env, trainer: Trainer, episode_length: int, seed: int,
     evals = make_evaluators(env, trainer, trainer.config.eval_episodes, episode_length, mesh)
     base_key = jax.random.PRNGKey(seed + 10_000)
     method = methods.get(trainer.config.method)
+    diagnostics = bool(trainer.config.eval_diagnostics)
     place = (lambda k: k) if mesh is None else (lambda k: sharding.put(k, sharding.replicated(mesh)))  # noqa: E731
+    # (device_get first: a multi-process run's arrays are global, this process reads its replica.)
+    mean = lambda x: float(jnp.mean(jax.device_get(x)))  # noqa: E731
+
+    def readout_key(iteration: int, i: int):
+        """Read-out i's own key at an evaluation: each draws the same with or without the others."""
+        return place(jax.random.fold_in(jax.random.fold_in(base_key, iteration), i))
 
     def evaluate(state: TrainingState, iteration: int) -> dict:
         k1, k2 = map(place, jax.random.split(jax.random.fold_in(base_key, iteration)))
-        # (A key of its own: the greedy evaluations draw what they drew before it existed.)
-        k3 = place(jax.random.fold_in(jax.random.fold_in(base_key, iteration), 1))
-        k4 = place(jax.random.fold_in(jax.random.fold_in(base_key, iteration), 2))
-        ev = evals.new_skill(state.new_skill.policy_params, state.normalizer, k1)
-        # (device_get first: a multi-process run's arrays are global, this process reads its replica.)
-        mean = lambda x: float(jnp.mean(jax.device_get(x)))  # noqa: E731
+        deployed = state.new_skill.deployed_policy_params  # the moving average where one is kept
+        ev = evals.new_skill(deployed, state.normalizer, k1)
         out = {"eval/new_skill_success": mean(ev["success"]), "eval/new_skill_return": mean(ev["return"])}
-        if state.new_skill.ema_policy_params is not None:  # the moving average, on the same episodes (k1)
-            ev = evals.new_skill(state.new_skill.ema_policy_params, state.normalizer, k1)
-            out["eval/new_skill_ema_success"] = mean(ev["success"])
-            out["eval/new_skill_ema_return"] = mean(ev["return"])
-        ev = evals.new_skill_sampled(state.new_skill.policy_params, state.normalizer, k4)
+        if state.new_skill.ema_policy_params is not None:  # the online policy, on the same episodes (k1)
+            ev = evals.new_skill(state.new_skill.policy_params, state.normalizer, k1)
+            out["eval/new_skill_online_success"] = mean(ev["success"])
+            out["eval/new_skill_online_return"] = mean(ev["return"])
+        ev = evals.new_skill_sampled(state.new_skill.policy_params, state.normalizer, readout_key(iteration, 2))
         out["eval/new_skill_sampled_success"] = mean(ev["success"])
         out["eval/new_skill_sampled_return"] = mean(ev["return"])
-        k5 = place(jax.random.fold_in(jax.random.fold_in(base_key, iteration), 3))
-        ev = evals.new_skill_critic_weighted(state.new_skill.policy_params, state.new_skill.critic_params,
-                                             state.normalizer, k5)
-        out["eval/new_skill_critic_weighted_success"] = mean(ev["success"])
-        out["eval/new_skill_critic_weighted_return"] = mean(ev["return"])
         if method.scheduler_acts:  # the scheduler acting (rhpo: the whole mixture)
-            ev = evals.scheduler(state.scheduler.policy_params, state.new_skill.policy_params, state.normalizer, k2)
+            ev = evals.scheduler(state.scheduler.policy_params, deployed, state.normalizer, k2)
             out["eval/scheduler_success"] = mean(ev["success"])
             out["eval/scheduler_return"] = mean(ev["return"])
+        if diagnostics:
+            out.update(diagnostic_readouts(state, iteration))
+        return out
+
+    def diagnostic_readouts(state: TrainingState, iteration: int) -> dict:
+        """``TrainConfig.eval_diagnostics``: the read-outs that explain a run rather than measure it."""
+        out = {}
+        ev = evals.new_skill_critic_weighted(state.new_skill.policy_params, state.new_skill.critic_params,
+                                             state.normalizer, readout_key(iteration, 3))
+        out["eval/new_skill_critic_weighted_success"] = mean(ev["success"])
+        out["eval/new_skill_critic_weighted_return"] = mean(ev["return"])
+        if method.scheduler_acts:
             # The same greedy decisions with the new skill's sampled actions: the scheduler's choices
             # apart from the new skill's mean-action read-out (docs/skills.md).
-            k6 = place(jax.random.fold_in(jax.random.fold_in(base_key, iteration), 4))
             ev = evals.scheduler_new_skill_sampled(state.scheduler.policy_params, state.new_skill.policy_params,
-                                                   state.normalizer, k6)
+                                                   state.normalizer, readout_key(iteration, 4))
             out["eval/scheduler_new_skill_sampled_success"] = mean(ev["success"])
             out["eval/scheduler_new_skill_sampled_return"] = mean(ev["return"])
         if method.learns_scheduler:  # the scheduler as it collects; its critic at the reset states
             ev = evals.scheduler_sampled(state.scheduler.policy_params, state.scheduler.critic_params,
-                              state.new_skill.policy_params, state.normalizer, k3)
+                                         state.new_skill.policy_params, state.normalizer, readout_key(iteration, 1))
             out["eval/scheduler_sampled_success"] = mean(ev["success"])
             out["eval/scheduler_sampled_return"] = mean(ev["return"])
             out["eval/scheduler_discounted_return"] = mean(ev["discounted_return"])

@@ -2,9 +2,7 @@ import numpy as np
 import jax
 import jax.numpy as jnp
 
-from parallel_skills.hcmpo import (critic_target, e_step_weights, entropy_floor_loss, m_step_loss, positive,
-                                   temperature_dual_loss)
-from parallel_skills.networks import categorical_entropy
+from parallel_skills.hcmpo import critic_target, e_step_weights, m_step_loss, positive, temperature_dual_loss
 
 GAMMA = 0.9
 
@@ -97,24 +95,3 @@ def test_m_step_loss_values_and_empty_mask():
         logp_new, jnp.asarray(alpha))
     assert all(np.all(np.asarray(g) == 0) for g in grads)
 
-
-def test_entropy_floor_loss_pushes_entropy_up_and_its_multiplier_towards_the_floor():
-    """−sg(β)·H̄ + β·sg(H̄ − H_min): the logits see −β·∂H̄ (towards uniform), β sees H̄ − H_min (grows
-    below the floor, shrinks above it); masked rows count for nothing; no rows: 0 and no gradient."""
-    logits = jnp.array([[3.0, 0.0, 0.0], [0.0, 2.0, 0.0], [5.0, 5.0, -5.0]])
-    mask = jnp.array([1.0, 1.0, 0.0])
-    h = categorical_entropy(logits)
-    mean_h = float((h[0] + h[1]) / 2)
-    beta, floor = 0.5, 0.9
-    loss = entropy_floor_loss(h, jnp.asarray(beta), floor, mask)
-    np.testing.assert_allclose(loss, -beta * mean_h + beta * (mean_h - floor), rtol=1e-6)
-    g_beta = jax.grad(lambda b: entropy_floor_loss(categorical_entropy(logits), b, floor, mask))(jnp.asarray(beta))
-    np.testing.assert_allclose(g_beta, mean_h - floor, rtol=1e-5)
-    assert mean_h < floor and float(g_beta) < 0  # below the floor: gradient descent raises β
-    g_logits = jax.grad(lambda lg: entropy_floor_loss(categorical_entropy(lg), jnp.asarray(beta), floor, mask))(logits)
-    stepped = logits - 0.1 * g_logits
-    assert float(categorical_entropy(stepped)[0]) > float(h[0]) and float(categorical_entropy(stepped)[1]) > float(h[1])
-    np.testing.assert_array_equal(g_logits[2], 0.0)
-    zero = jnp.zeros(3)
-    assert float(entropy_floor_loss(h, jnp.asarray(beta), floor, zero)) == 0.0
-    assert float(jax.grad(lambda b: entropy_floor_loss(h, b, floor, zero))(jnp.asarray(beta))) == 0.0

@@ -226,6 +226,24 @@ def test_one_critic_keeps_the_single_critic_layout():
     assert train_config_from_json(old, "config.json").new_skill.num_critics == 1
 
 
+def test_a_record_with_removed_fields_reads_only_where_they_were_off():
+    """training.rundir.REMOVED_FIELDS: a config.json from before a field was removed reads as today's
+    config where the field held its "off" value, and fails naming the field where it did not."""
+    import dataclasses
+
+    from parallel_skills import TrainConfig
+    from training.cli import UsageError
+    from training.rundir import REMOVED_FIELDS, train_config_from_json
+
+    old = dataclasses.asdict(TrainConfig())
+    for (section, name), off in REMOVED_FIELDS.items():
+        old[section][name] = -5.0 if off is None else off
+    assert train_config_from_json(old, "config.json") == TrainConfig()
+    old["new_skill"]["dpg_weight"] = 1.0
+    with pytest.raises(UsageError, match=r"new_skill.dpg_weight = 1.0: a setting removed"):
+        train_config_from_json(old, "config.json")
+
+
 def test_new_skill_mpo_mix_runs():
     state = new_skill_learner_init(jax.random.PRNGKey(0), O, A, NCFG_MIX)
     batch = _new_skill_batch(jax.random.PRNGKey(1))
@@ -256,29 +274,6 @@ def test_updates_per_iteration():
     assert updates_per_iteration(1, 4, 256) == 1
 
 
-def test_polyak_targets():
-    """target_tau > 0: after every update θ' ← τ·θ + (1 − τ)·θ' (checked against the previous target
-    and the new online parameters); τ = 1 makes the targets the online networks."""
-    cfg = NewSkillConfig(hidden=(32, 32), target_tau=0.25)
-    state = new_skill_learner_init(jax.random.PRNGKey(0), O, A, cfg)
-    batch = _new_skill_batch(jax.random.PRNGKey(1))
-    update = jax.jit(functools.partial(new_skill_learner_update, config=cfg))
-    s1, _ = update(state, batch, jax.random.PRNGKey(2))
-    s2, _ = update(s1, batch, jax.random.PRNGKey(3))
-    for old, online, new in zip(*(jax.tree_util.tree_leaves(t) for t in (
-            s1.target_critic_params, s2.critic_params, s2.target_critic_params))):
-        np.testing.assert_allclose(new, 0.25 * online + 0.75 * old, rtol=1e-5, atol=1e-7)
-    assert not all(np.array_equal(a, b) for a, b in zip(jax.tree_util.tree_leaves(s2.target_critic_params),
-                                                          jax.tree_util.tree_leaves(s2.critic_params)))
-    s_one, _ = jax.jit(functools.partial(scheduler_learner_update, config=dataclasses.replace(SCFG, target_tau=1.0)))(
-        scheduler_learner_init(jax.random.PRNGKey(0), O, N1, SCFG), _scheduler_batch(jax.random.PRNGKey(1)),
-        jax.random.PRNGKey(2))
-    for a, b in zip(jax.tree_util.tree_leaves(s_one.target_policy_params), jax.tree_util.tree_leaves(s_one.policy_params)):
-        np.testing.assert_array_equal(a, b)
-    with pytest.raises(ValueError, match=r"target_tau must be a number in \[0, 1\]"):
-        NewSkillConfig(target_tau=1.5)
-
-
 def test_scheduler_without_the_new_skill_choice_never_chooses_it():
     """new_skill_choice=False (paper Fig. 6a ablation): the new skill's probability is exactly 0 at
     init and stays exactly 0 (online and target policy) through updates on data that reward it."""
@@ -297,89 +292,6 @@ def test_scheduler_without_the_new_skill_choice_never_chooses_it():
     li, _ = apply(new_state.policy_params, base.obs)
     np.testing.assert_allclose(jax.nn.softmax(li)[:, :-1].sum(-1), 1.0, rtol=1e-6)  # the others share it all
     assert not np.allclose(li[:, 0], 0.0)  # and the policy over them did learn
-
-
-def _floor_run(base, **floor):
-    """150 scheduler updates on ``base`` with an entropy floor setting (e.g. skill_entropy_floor=0.9)
-    and fast duals: (the initial state, the final state, the stacked metrics)."""
-    cfg = dataclasses.replace(SCFG, epsilon=1.0, epsilon_kl=0.1, dual_learning_rate=0.1, **floor)
-    state = scheduler_learner_init(jax.random.PRNGKey(0), O, N1, cfg)
-    new_state, metrics = _scan_updates(scheduler_learner_update, cfg, 150)(state, base, jax.random.PRNGKey(4))
-    assert _finite(metrics) and _finite(new_state)
-    return state, new_state, metrics
-
-
-def test_skill_entropy_floor_keeps_the_skill_choice_from_collapsing():
-    """Rewards for skill 2 only: without a floor π(i|s) sharpens; with skill_entropy_floor 0.9 its
-    multiplier β grows and the entropy stays well above the unfloored run's. Without a floor the
-    duals have the paper's two leaves (checkpoints of earlier runs restore)."""
-    from parallel_skills.learners import skill_entropy_floor_nats
-
-    base = _scheduler_batch(jax.random.PRNGKey(3))
-    base = base.replace(reward=5.0 * (base.skill == 2).astype(jnp.float32), is_decision=jnp.ones(B, bool),
-                        c=jnp.asarray(K, jnp.int32)[base.k_idx])
-    assert len(jax.tree_util.tree_leaves(scheduler_learner_init(jax.random.PRNGKey(0), O, N1, SCFG).dual_params)) == 2
-    entropies = {}
-    for floor in (0.0, 0.9):
-        _, new_state, metrics = _floor_run(base, skill_entropy_floor=floor)
-        entropies[floor] = float(metrics["policy_entropy_i"][-1])
-        if floor:
-            assert len(jax.tree_util.tree_leaves(new_state.dual_params)) == 3
-            assert float(metrics["entropy_weight"][-1]) > float(metrics["entropy_weight"][0])
-        else:
-            np.testing.assert_array_equal(metrics["entropy_weight"], 0.0)
-    h_min = skill_entropy_floor_nats(N1, dataclasses.replace(SCFG, skill_entropy_floor=0.9))
-    np.testing.assert_allclose(h_min, 0.9 * np.log(3), rtol=1e-6)
-    assert entropies[0.0] < 0.5 * np.log(3) < entropies[0.9], entropies
-
-
-def test_length_entropy_floor_keeps_the_length_choice_from_collapsing():
-    """Rewards for the short length only: without a floor π(k|s) sharpens; with length_entropy_floor
-    0.9 its own multiplier grows and H(π(k|s)) stays above half its maximum. The skill floor's
-    multiplier is not created by it, and the stat exists only with the floor."""
-    from parallel_skills.learners import length_entropy_floor_nats
-
-    base = _scheduler_batch(jax.random.PRNGKey(3))
-    base = base.replace(reward=5.0 * (base.k_idx == 0).astype(jnp.float32), is_decision=jnp.ones(B, bool),
-                        c=jnp.asarray(K, jnp.int32)[base.k_idx])
-    entropies = {}
-    for floor in (0.0, 0.9):
-        state, new_state, metrics = _floor_run(base, length_entropy_floor=floor)
-        assert state.dual_params.log_entropy_weight is None
-        entropies[floor] = float(metrics["policy_entropy_k"][-1])
-        if floor:
-            assert len(jax.tree_util.tree_leaves(new_state.dual_params)) == 3
-            assert float(metrics["length_entropy_weight"][-1]) > float(metrics["length_entropy_weight"][0])
-        else:
-            assert "length_entropy_weight" not in metrics
-    np.testing.assert_allclose(length_entropy_floor_nats(dataclasses.replace(SCFG, length_entropy_floor=0.9)),
-                               0.9 * np.log(len(K)), rtol=1e-6)
-    assert entropies[0.0] < 0.5 * np.log(len(K)) < entropies[0.9], entropies
-
-
-def _hold_or_release_batch(n: int = 64):
-    """One state, its stored actions mostly "holds" (action[0] = −0.6, reward 0) and one in eight
-    a "release" (+0.6, reward 1), terminal: Q = r. CRR's fit of the mean follows the majority."""
-    release = (jnp.arange(n) % 8 == 0)
-    action = jnp.stack([jnp.where(release, 0.6, -0.6), jnp.zeros(n)], axis=-1)
-    obs = jnp.broadcast_to(jnp.linspace(-1.0, 1.0, O), (n, O))
-    return Transition.batch(obs=obs, action=action, reward=release.astype(jnp.float32), discount=jnp.zeros(n),
-                            next_obs=obs)
-
-
-@pytest.mark.parametrize("dpg_weight,sign", [(0.0, -1.0), (5.0, 1.0)])
-def test_dpg_weight_moves_the_mean_up_the_critic_where_crr_follows_the_majority(dpg_weight, sign):
-    """docs/skills.md: CRR fits the mean to the stored actions' weighted average, so a rare better
-    action (a release among holds) leaves the mean on the holds' side; −λ·Q(s, μ(s)) moves it to the
-    better side. Pure CRR: mean action[0] < 0; λ = 5: > 0."""
-    cfg = dataclasses.replace(NCFG, dpg_weight=dpg_weight, discount=0.0)
-    batch = _hold_or_release_batch()
-    state = new_skill_learner_init(jax.random.PRNGKey(0), O, A, cfg)
-    new_state, metrics = _scan_updates(new_skill_learner_update, cfg, 400)(state, batch, jax.random.PRNGKey(1))
-    assert _finite(metrics) and _finite(new_state)
-    assert ("q_at_mean" in metrics) == (dpg_weight > 0)
-    mean, _ = make_new_skill_apply(A, cfg)(new_state.policy_params, batch.obs[:1])
-    assert sign * float(mean[0, 0]) > 0.1, float(mean[0, 0])
 
 
 def test_new_skill_policy_ema_averages_the_iterates_and_nothing_else():

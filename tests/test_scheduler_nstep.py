@@ -11,10 +11,9 @@ import pytest
 
 import tasks
 from parallel_skills import NewSkillConfig, SchedulerConfig, Skill, TrainConfig, learners
-from parallel_skills import normalization as obs_norm
 from parallel_skills.nstep import execution_nstep_fields
 from parallel_skills.replay import PendingStep, Replay, SchedulerBatch, Transition
-from parallel_skills.train import EpisodeAccumulator, make_evaluation, make_trainer
+from parallel_skills.train import EpisodeAccumulator, TrainedParams, make_evaluation, make_trainer
 from tasks.manipulation import scripted
 
 GAMMA = 0.9
@@ -119,9 +118,9 @@ def test_nstep_target_bootstraps_with_the_counter_after_m_steps():
     np.testing.assert_allclose(y[1, 1], -0.4 + GAMMA ** 4 * v[1], rtol=1e-5)  # the piece ended: fresh
 
 
-def _tiny(n_step):
+def _tiny(n_step, eval_diagnostics=False):
     cfg = TrainConfig(
-        num_envs=4, unroll_length=5, replay_size=2000, eval_episodes=2,
+        num_envs=4, unroll_length=5, replay_size=2000, eval_episodes=2, eval_diagnostics=eval_diagnostics,
         scheduler=SchedulerConfig(skill_lengths=(2, 3), hidden=(16,), critic_head_hidden=(8,), batch_size=16,
                                   min_replay_size=10, samples_per_insert=4.0, n_step=n_step),
         new_skill=NewSkillConfig(hidden=(16,), batch_size=16, min_replay_size=10, samples_per_insert=4.0))
@@ -142,8 +141,17 @@ def test_scheduler_nstep_trains_and_one_step_keeps_the_state_layout():
     _, one = _tiny(1)
     abstract = jax.eval_shape(one.init, jax.random.PRNGKey(0))
     assert abstract.pending is None and not hasattr(abstract.replay.experience, "sched_reward")
-    # The diagnostics of an evaluation: the scheduler as it collects and its critic at the resets.
+    # An evaluation reads out the new skill (mean and sampled actions) and the greedy scheduler ...
     ev = make_evaluation(env, trainer, 7, seed=0)(state, 3)
+    assert set(ev) == {f"eval/{name}_{what}" for name in ("new_skill", "new_skill_sampled", "scheduler")
+                       for what in ("success", "return")}
+    # ... and with eval_diagnostics also the scheduler as it collects (its critic at the resets), the
+    # greedy scheduler with the new skill sampled and the critic-weighted new skill; the others
+    # draw the same episodes with or without them.
+    _, diag_trainer = _tiny(3, eval_diagnostics=True)
+    diag = make_evaluation(env, diag_trainer, 7, seed=0)(state, 3)
+    assert {k: diag[k] for k in ev} == ev
+    ev = diag
     for key in ("eval/scheduler_sampled_success", "eval/scheduler_sampled_return",
                 "eval/scheduler_discounted_return", "eval/scheduler_value_at_reset",
                 "eval/new_skill_sampled_success", "eval/new_skill_sampled_return",
@@ -153,6 +161,41 @@ def test_scheduler_nstep_trains_and_one_step_keeps_the_state_layout():
     assert 0.0 <= ev["eval/scheduler_sampled_success"] <= 1.0
     assert 0.0 <= ev["eval/new_skill_sampled_success"] <= 1.0
     assert 0.0 <= ev["eval/new_skill_critic_weighted_success"] <= 1.0
+
+
+def test_with_a_moving_average_the_average_is_what_is_evaluated_run_and_exported(monkeypatch):
+    """NewSkillConfig.policy_ema: the new skill read out (``eval/new_skill_*``), run by the greedy
+    scheduler and exported (``TrainedParams``) is the average; the online policy is read out beside
+    it on the same episodes, and its Gaussian is the sampled read-out (it is what collects)."""
+    import importlib
+    from types import SimpleNamespace
+
+    train_module = importlib.import_module("parallel_skills.train")  # (the package exports a function of that name)
+
+    calls = []
+
+    def fake(name):
+        def evaluate(*args):
+            calls.append((name, args))
+            return {"success": jnp.zeros(2), "return": jnp.zeros(2)}
+        return evaluate
+
+    monkeypatch.setattr(train_module, "make_evaluators",
+                        lambda *a, **k: SimpleNamespace(**{n: fake(n) for n in ("new_skill", "new_skill_sampled",
+                                                                                  "scheduler")}))
+    trainer = SimpleNamespace(config=TrainConfig(eval_episodes=2))
+    online = {"w": jnp.ones(())}
+    plain = learners.LearnerState(*([online] + [None] * 8))
+    averaged = plain.replace(ema_policy_params={"w": jnp.full((), 2.0)})
+    assert plain.deployed_policy_params is online and averaged.deployed_policy_params is averaged.ema_policy_params
+    state = SimpleNamespace(new_skill=averaged, scheduler=SimpleNamespace(policy_params=None), normalizer=None)
+    out = train_module.make_evaluation(None, trainer, 7, seed=0)(state, 3)
+    read = {name: args[1 if name == "scheduler" else 0]["w"] for name, args in calls}  # (the last call of each)
+    assert float(read["scheduler"]) == 2.0 and float(read["new_skill_sampled"]) == 1.0
+    assert [float(args[0]["w"]) for name, args in calls if name == "new_skill"] == [2.0, 1.0]
+    assert {k for k in out if "online" in k} == {"eval/new_skill_online_success", "eval/new_skill_online_return"}
+    assert TrainedParams.of(SimpleNamespace(new_skill=averaged, scheduler=SimpleNamespace(policy_params=None),
+                                            normalizer=None)).new_skill is averaged.ema_policy_params
 
 
 def test_rewarded_fraction_counts_stored_rows_only():
@@ -185,24 +228,3 @@ def test_scheduler_n_step_must_be_positive():
     with pytest.raises(ValueError, match="n_step"):
         dataclasses.replace(SchedulerConfig(), n_step=0)
 
-
-def test_new_skill_window_samples_only_the_rows_inserted_last():
-    """NewSkillConfig.replay_window: the new skill's batches come from the last W rows of the ring
-    (wrapping past its end), the scheduler's from every stored row."""
-    replay = Replay(capacity=8, num_envs=2, obs_size=1, action_size=1, scheduler_batch_size=8,
-                    new_skill_batch_size=8, new_skill_window=3)
-    state = replay.init()
-    for t in range(6):  # 12 rows into 8 slots: rows 4..11 stored, the last three 9, 10, 11
-        row = jnp.asarray([[2.0 * t, 2.0 * t + 1.0]])
-        state, _ = replay.insert(state, None, Transition.zeros(1, 1, (1, 2)).replace(reward=row),
-                                 jnp.zeros((1, 2), bool))
-    norm = obs_norm.init(1)
-    keys = jax.random.split(jax.random.PRNGKey(0), 8)
-    recent = {float(r) for k in keys for r in np.asarray(replay.sample_new_skill(state, norm, k).reward)}
-    assert recent == {9.0, 10.0, 11.0}
-    every = {float(r) for k in keys for r in np.asarray(replay.sample_scheduler(state, norm, k).reward)}
-    assert every <= set(map(float, range(4, 12))) and len(every) > 3
-    fresh = replay.init()  # fewer rows than the window: all of them
-    fresh, _ = replay.insert(fresh, None, Transition.zeros(1, 1, (1, 2)).replace(reward=jnp.asarray([[5.0, 6.0]])),
-                             jnp.zeros((1, 2), bool))
-    assert set(np.asarray(replay.sample_new_skill(fresh, norm, jax.random.PRNGKey(1)).reward).tolist()) == {5.0, 6.0}

@@ -36,8 +36,9 @@ CSV_FIELDS = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skil
               "eval/new_skill_critic_weighted_success", "eval/new_skill_critic_weighted_return",
               # The greedy scheduler with the new skill's sampled actions (its mean: eval/scheduler_*).
               "eval/scheduler_new_skill_sampled_success", "eval/scheduler_new_skill_sampled_return",
-              # The new skill's moving-average policy, mean actions (NewSkillConfig.policy_ema > 0).
-              "eval/new_skill_ema_success", "eval/new_skill_ema_return"]
+              # With NewSkillConfig.policy_ema > 0 the new skill evaluated above is its moving average
+              # (what is exported); its online policy, mean actions, on the same episodes.
+              "eval/new_skill_online_success", "eval/new_skill_online_return"]
 
 
 # Without --checkpoint_every: checkpoint at evaluations, but at most once a minute (a lift run on a

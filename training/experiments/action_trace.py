@@ -7,7 +7,7 @@ deterministic read-out gets stuck; docs/scheduler.md §8).
 With each step's action the trace holds the new skill's critic there (the minimum over its critics, as
 CRR's advantage takes it): ``q_mean`` at the mean action, ``q_up`` / ``q_down`` at the mean action with
 dimension ``--dim`` set to +1 / −1, and ``v`` the mean over 16 actions sampled from the Gaussian (CRR's
-baseline, ``crr.crr_advantage``). So ``q_up − v`` is the advantage CRR gives an action that opens
+baseline, ``crr.mean_baseline_advantage``). So ``q_up − v`` is the advantage CRR gives an action that opens
 the fingers there, and ``q_mean − v`` the mean action's.
 
 ``--over TOP,BOTTOM`` (e.g. ``green,yellow``) adds the grasp and both cubes' poses to the trace and

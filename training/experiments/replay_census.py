@@ -40,7 +40,7 @@ def census(run, top: str, bottom: str, dim: int, key_seed: int = 0, chunk: int =
 
     from parallel_skills import learners
     from parallel_skills import normalization as obs_norm
-    from parallel_skills.crr import crr_advantage, crr_weights
+    from parallel_skills.crr import crr_weights, mean_baseline_advantage
     from parallel_skills.train import make_replay
 
     cfg = run.config.new_skill
@@ -62,7 +62,7 @@ def census(run, top: str, bottom: str, dim: int, key_seed: int = 0, chunk: int =
         a_j = learners.sample_n(mean, std, j, key)
         q = jnp.min(learners.critic_values(critic, ns.critic_params, o, a), axis=-1)
         q_j = jnp.min(learners.critic_values(critic, ns.critic_params, learners.tile_obs(o, j), a_j), axis=-1)
-        adv = crr_advantage(q, q_j, cfg.crr_advantage)
+        adv = mean_baseline_advantage(q, q_j)
         return crr_weights(adv, cfg.crr_mode, cfg.crr_beta, cfg.crr_clip), adv, mean[:, dim]
 
     w, adv, pmean = [], [], []
@@ -97,8 +97,7 @@ def census(run, top: str, bottom: str, dim: int, key_seed: int = 0, chunk: int =
             "unweighted_mean_of_dim": round(float(a_dim.mean()), 4) if len(rows) else None,
             "crr_weighted_mean_of_dim": round(float((w * a_dim).sum() / total_w), 4) if total_w > 0 else None,
             "policy_mean_of_dim": round(float(pmean.mean()), 4) if len(rows) else None,
-            "crr": {"mode": cfg.crr_mode, "beta": cfg.crr_beta, "clip": cfg.crr_clip, "samples": j,
-                    "advantage": cfg.crr_advantage}}
+            "crr": {"mode": cfg.crr_mode, "beta": cfg.crr_beta, "clip": cfg.crr_clip, "samples": j}}
 
 
 def main(argv=None):
