@@ -28,6 +28,15 @@ def test_variants():
     assert (many.method, many.config, many.kind) == ("skills", {}, "skill_set")
     assert many.run_args == ("--skills", "many_useful", "--skill_source", "library")
     assert parse_variant("distractors", METHODS).run_args == ("--skills", "distractors")
+    # The defaults as a user gets them: nothing set but the skills (and the accelerator's sizes).
+    assert parse_variant("default", METHODS) == Variant("default", "skills", {}, (), "default")
+    assert parse_variant("default", METHODS).is_reference
+    lib = parse_variant("default-library", METHODS)
+    assert lib.config == {} and lib.run_args == ("--skills", "useful", "--skill_source", "library")
+    from parallel_skills.config import RECIPE_SIZES
+    envs, replay = RECIPE_SIZES[("parallel", False)]
+    assert parse_variant("parallel-4096", METHODS).config == {"recipe": "parallel", "num_envs": envs,
+                                                              "replay_size": replay} and envs == 4096
     with pytest.raises(Exception, match="unknown method, ablation or skill set 'bc'"):
         parse_variant("bc", METHODS)
     with pytest.raises(Exception, match="bad setting"):
@@ -87,6 +96,11 @@ def test_dry_run_prints_the_plan(tmp_path, capsys):
                 "--dry_run"])
     out = capsys.readouterr().out
     assert "skills" in out and "s0: new" in out and "s0: done" in out
+    paper.main(["--tasks", "lift", "--methods", "default,default-library,skills[replay_size=1000,greedy_env_fraction=0.5]",
+                "--seeds", "0", "--out", str(tmp_path), "--dry_run"])
+    out = capsys.readouterr().out
+    assert all(f"lift          {name}" in out for name in ("default ", "default-library ",
+                                                           "skills-replay_size=1000-greedy_env_fraction=0.5 "))
 
 
 def test_bad_arguments(tmp_path, capsys):
@@ -126,6 +140,28 @@ def test_plots_each_method_at_its_best_setting_and_the_ablations(tmp_path, capsy
     printed = capsys.readouterr().out
     assert "started" not in printed and os.path.isfile(os.path.join(out, "results.md"))
     assert sorted(os.listdir(os.path.join(out, "lift", "k1"))) == ["s0"]
+
+
+def test_selection_grid_puts_each_setting_against_tasks_and_skill_sources(tmp_path):
+    """One row per setting, one column per task and skill source; the cell: the new skill at the
+    budget, mean ± std over the seeds that reached it and the lowest seed. Baselines and ablations
+    are not candidates; the defaults' named variants are the "defaults" row."""
+    out = str(tmp_path)
+    finals = {("lift", "default"): (0.9, 0.7), ("lift", "default-library"): (0.8, 1.0),
+              ("lift", "skills-replay_size=100000"): (1.0, 1.0),
+              ("stack", "library_useful-replay_size=100000"): (0.5, 0.3), ("lift", "scratch"): (0.0, 0.0),
+              ("lift", "k1"): (0.1, 0.1)}
+    for (task, name), values in finals.items():
+        for seed, final in enumerate(values):
+            _metrics(os.path.join(out, task, name, f"s{seed}"), [(200, 5.0, 0.0, 1.0), (400, 10.0, final, 2.0)])
+    variants = [parse_variant(x, METHODS) for x in ("default", "default-library", "skills[replay_size=100000]",
+                                                    "library_useful[replay_size=100000]", "scratch", "k1")]
+    lines = paper.selection_table(out, ["lift", "stack"], variants, [0, 1], {"lift": 400, "stack": 400})
+    assert "| setting | lift · scripted | lift · library | stack · scripted | stack · library |" in lines
+    assert "| defaults | 0.80 ± 0.14 (min 0.70, 2 seeds) | 0.90 ± 0.14 (min 0.80, 2 seeds) | – | – |" in lines
+    assert "| replay_size=100000 | 1.00 ± 0.00 (min 1.00, 2 seeds) | – | – | 0.40 ± 0.14 (min 0.30, 2 seeds) |" in lines
+    assert not any(line.startswith(("| scratch", "| k1")) for line in lines)
+    assert "| defaults | – | – |" in paper.selection_table(out, ["lift"], variants, [0, 1], {"lift": 800})
 
 
 def test_run_jobs_reports_each_job_as_it_finishes(tmp_path, capsys):

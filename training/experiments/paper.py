@@ -10,7 +10,9 @@ e.g. ``kl_reg[new_skill.mpo_epsilon=1,new_skill.mpo_alpha=0]`` (a baseline's swe
 named ablation of SkillS (``ABLATIONS``: k1, fixed100, no_augmentation, new_skill_mpo,
 no_new_skill_choice), or SkillS with another skill set (``SKILL_SETS``, the paper's Fig. 5:
 useful_distractors, distractors, library_useful, many_useful; the last two load the neural skill
-library, ``many_useful`` three seeds of each useful skill).
+library, ``many_useful`` three seeds of each useful skill), or one of the defaults as a user gets them
+(``DEFAULT_NAMES``: ``default``, ``default-library``, ``parallel-4096``: the accelerator recipe at its
+env count and replay size).
 
 Layout: ``OUT/<task>/<variant>/s<seed>/`` (a ``training.run`` directory, its log next to it as
 ``s<seed>.log``), ``OUT/<task>_new_skill.png`` (new skill alone, mean ± 1 std over seeds, each
@@ -59,9 +61,14 @@ SKILL_SETS = {
     "library_useful": ("--skills", "useful", "--skill_source", "library"),  # many_useful's reference
     "many_useful": ("--skills", "many_useful", "--skill_source", "library"),  # 3 seeds of each useful skill
 }
+# The defaults as a user gets them, no setting beyond task / skills / seed: SkillS with the scripted
+# useful skills and with the library's, and the accelerator recipe as a GPU runs it (its env count
+# and replay size) on whatever this is (kind "default"; ``default_variants``).
+DEFAULT_NAMES = ("default", "default-library", "parallel-4096")
 FRACTIONS = (0.25, 0.5, 1.0)  # of the budget, for the table
 KEY = "eval/new_skill_success"  # what the table and the choice of a method's best setting read
-_VARIANT = re.compile(r"^(?P<name>[a-z0-9_]+)(\[(?P<settings>[^\]]*)\])?$")
+_VARIANT = re.compile(r"^(?P<name>[a-z0-9_]+(?:-[a-z0-9_]+)*)(\[(?P<settings>[^\]]*)\])?$")
+_ITEM = re.compile(r"[a-z0-9_]+(?:-[a-z0-9_]+)*(?:\[[^\]]*\])?")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,15 +77,25 @@ class Variant:
     method: str
     config: dict  # nested TrainConfig fields ({} for the defaults)
     run_args: tuple = ()  # extra training.run flags (a skill set)
-    kind: str = "method"  # "method" (a method or one of its settings), "ablation" or "skill_set"
+    kind: str = "method"  # "method" (a method or one of its settings), "ablation", "skill_set" or "default"
 
     @property
     def is_reference(self) -> bool:
         """Whether this is SkillS with its defaults: the curve the ablations and skill sets are drawn against."""
         from parallel_skills import methods
 
-        return (self.kind == "method" and methods.get(self.method) is methods.SKILLS
+        return (self.kind in ("method", "default") and methods.get(self.method) is methods.SKILLS
                 and not self.config and not self.run_args)
+
+
+def default_variants() -> dict:
+    """``DEFAULT_NAMES`` -> (method, config, training.run flags)."""
+    from parallel_skills.config import RECIPE_SIZES
+
+    envs, replay = RECIPE_SIZES[("parallel", False)]  # what an accelerator gets
+    return {"default": ("skills", {}, ()),
+            "default-library": ("skills", {}, SKILL_SETS["library_useful"]),
+            "parallel-4096": ("skills", {"recipe": "parallel", "num_envs": envs, "replay_size": replay}, ())}
 
 
 def setting_label(key: str) -> str:
@@ -99,14 +116,16 @@ def parse_variant(text: str, methods) -> Variant:
         raise UsageError(f"bad variant {text!r}: use METHOD or METHOD[section.field=value,...]")
     name = m.group("name")
     run_args, kind = (), "method"
-    if name in ABLATIONS:
+    if name in DEFAULT_NAMES:
+        (method, config, run_args), kind = default_variants()[name], "default"
+    elif name in ABLATIONS:
         (method, config), kind = ABLATIONS[name], "ablation"
     elif name in SKILL_SETS:
         method, config, run_args, kind = "skills", {}, SKILL_SETS[name], "skill_set"
     elif name in methods:
         method, config = name, {}
     else:
-        valid = list(methods) + list(ABLATIONS) + list(SKILL_SETS)
+        valid = list(methods) + list(ABLATIONS) + list(SKILL_SETS) + list(DEFAULT_NAMES)
         raise UsageError(f"unknown method, ablation or skill set {name!r}; valid: {', '.join(valid)}")
     config = json.loads(json.dumps(config))
     parts = []
@@ -293,10 +312,65 @@ def write_results(out: str, tasks: list, variants: list, seeds: list, budgets: d
             written.append(plot_curves(groups, os.path.join(out, f"{task}_{suffix}.png")))
     lines.append(f"Total training wall time of the runs above: {total_seconds / 3600:.2f} h (summed over runs; "
                  "runs in parallel overlap).")
+    grid = selection_table(out, tasks, variants, seeds, budgets)
+    if grid:
+        lines += [""] + grid
+        print("\n".join(grid))
     path = os.path.join(out, "results.md")
     with open(path, "w") as f:
         f.write("\n".join(lines) + "\n")
     return written + [path]
+
+
+def grid_cell(variant: Variant) -> Optional[tuple]:
+    """(setting, skill source) of a SkillS variant in the selection grid (``selection_table``), or
+    None for a baseline or an ablation: the setting is the variant's bracketed part ("defaults" for
+    none; ``parallel-4096`` its own), the source "scripted" (the useful controllers), "library" (the
+    library's useful set) or another skill set's name."""
+    from parallel_skills import methods
+
+    if methods.get(variant.method) is not methods.SKILLS or variant.kind == "ablation":
+        return None
+    if variant.kind == "default":
+        return ("defaults", "library") if variant.name == "default-library" else (
+            ("defaults", "scripted") if variant.name == "default" else (variant.name, "scripted"))
+    base = variant.name.split("-")[0]
+    setting = variant.name[len(base) + 1:] or "defaults"
+    return setting, ("scripted" if base == "skills" else "library" if base == "library_useful" else base)
+
+
+def selection_table(out: str, tasks: list, variants: list, seeds: list, budgets: dict) -> list:
+    """The selection grid as markdown lines: one row per setting, one column per task and skill
+    source, each cell the new skill alone at the task's budget (its last evaluation at or before
+    it): mean ± std over the seeds that reached the budget, then the lowest seed's value in
+    brackets, and how many seeds. Settings are compared on the same tasks, sources and seeds."""
+    from training.experiments.results import mean_std
+
+    cells, columns, rows = {}, [], []
+    for task in tasks:
+        for v in variants:
+            where = grid_cell(v)
+            if where is None:
+                continue
+            setting, source = where
+            _, runs = variant_runs(out, task, v, seeds)
+            finals = [success_at(r, budgets[task], KEY) for r in runs if r[-1]["env_steps"] >= budgets[task]]
+            finals = [x for x in finals if x is not None]
+            column = f"{task} · {source}"
+            if column not in columns:
+                columns.append(column)
+            if setting not in rows:
+                rows.append(setting)
+            cells[setting, column] = (f"{mean_std(finals)} (min {min(finals):.2f}, {len(finals)} seeds)"
+                                      if finals else "–")
+    if not columns:
+        return []
+    lines = ["## Selection grid: the new skill alone at each task's budget", "",
+             "Mean ± sample std over the seeds that reached the budget (min: the lowest seed).", "",
+             "| setting | " + " | ".join(columns) + " |", "| --- | " + " | ".join("---" for _ in columns) + " |"]
+    for setting in rows:
+        lines.append(f"| {setting} | " + " | ".join(cells.get((setting, c), "") for c in columns) + " |")
+    return lines + [""]
 
 
 def archive_runs(out: str, archive: str, tasks: list, variants: list, seeds: list, done=frozenset()) -> list:
@@ -348,7 +422,7 @@ def main(argv=None):
                 raise UsageError(f"unknown task {t!r}; valid: {', '.join(task_registry.names())}")
         sep = ";" if ";" in args.methods else ","
         if sep == "," and "[" in args.methods:
-            items = re.findall(r"[a-z0-9_]+(?:\[[^\]]*\])?", args.methods)
+            items = _ITEM.findall(args.methods)
         else:
             items = [x for x in args.methods.split(sep) if x.strip()]
         variants = [parse_variant(x, method_registry.names()) for x in items]
