@@ -110,7 +110,6 @@ BAD_CONFIGS = [
     ("lengths", {"scheduler": {"skill_lengths": [3, 2]}}, "skill_lengths must be positive, unique and ascending"),
     ("lengths_type", {"scheduler": {"skill_lengths": 3}}, "skill_lengths must be a non-empty list"),
     ("crr_mode", {"new_skill": {"crr_mode": "bogus"}}, "crr_mode must be 'exp' or 'indicator'"),
-    ("removed_field", {"new_skill": {"dpg_weight": 1.0}}, "unknown new_skill config field(s) ['dpg_weight']"),
     ("method", {"method": "magic"}, "method must be one of skills, scratch, finetune, kl_reg, dagger, rhpo"),
     ("baseline", {"new_skill": {"baseline": "bc"}}, "baseline must be one of mpo, kl_reg, dagger"),
     ("rhpo_lengths", {"method": "rhpo", "scheduler": {"skill_lengths": [2, 3]}}, "skill_lengths must be [1]"),

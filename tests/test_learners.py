@@ -226,21 +226,18 @@ def test_one_critic_keeps_the_single_critic_layout():
     assert train_config_from_json(old, "config.json").new_skill.num_critics == 1
 
 
-def test_a_record_with_removed_fields_reads_only_where_they_were_off():
-    """training.rundir.REMOVED_FIELDS: a config.json from before a field was removed reads as today's
-    config where the field held its "off" value, and fails naming the field where it did not."""
+def test_a_record_of_a_removed_field_is_refused_naming_it():
+    """docs/research/pruned.md: a run recorded with a field the code no longer has does not read as
+    a config (resume, evaluate, --config RUN/config.json); the one line names the field."""
     import dataclasses
 
     from parallel_skills import TrainConfig
     from training.cli import UsageError
-    from training.rundir import REMOVED_FIELDS, train_config_from_json
+    from training.rundir import train_config_from_json
 
     old = dataclasses.asdict(TrainConfig())
-    for (section, name), off in REMOVED_FIELDS.items():
-        old[section][name] = -5.0 if off is None else off
-    assert train_config_from_json(old, "config.json") == TrainConfig()
-    old["new_skill"]["dpg_weight"] = 1.0
-    with pytest.raises(UsageError, match=r"new_skill.dpg_weight = 1.0: a setting removed"):
+    old["new_skill"]["removed_option"] = 0.0
+    with pytest.raises(UsageError, match=r"unknown new_skill config field\(s\) \['removed_option'\] in config.json"):
         train_config_from_json(old, "config.json")
 
 

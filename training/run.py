@@ -140,10 +140,7 @@ def load_config_file(path: str) -> dict:
     if not isinstance(data, dict):
         raise UsageError(f"config file {path} must hold a JSON object of TrainConfig fields")
     if isinstance(data.get("train_config"), dict) and "task" in data:  # a run's config.json: its whole config
-        try:
-            return rundir.recorded_train_config(data["train_config"])
-        except ValueError as e:
-            raise UsageError(f"config file {path}: {e}") from None
+        return rundir.recorded_train_config(data["train_config"])
     return data
 
 

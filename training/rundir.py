@@ -112,29 +112,11 @@ def host_facts() -> dict:
             "processes": int(jax.process_count()), "jax": jax.__version__}
 
 
-# Fields removed since runs recorded them (docs/research/pruned.md: what each measured, and the
-# commit where its code lived), with the value that meant "off": a record that holds one at that
-# value trained as today's code does, and reads without it; any other value is a setting the code
-# no longer has.
-REMOVED_FIELDS = {("scheduler", "target_tau"): 0.0, ("new_skill", "target_tau"): 0.0,
-                  ("scheduler", "skill_entropy_floor"): 0.0, ("scheduler", "length_entropy_floor"): 0.0,
-                  ("scheduler", "init_log_entropy_weight"): None, ("new_skill", "crr_advantage"): "mean",
-                  ("new_skill", "dpg_weight"): 0.0, ("new_skill", "replay_window"): 0}
-
-
 def recorded_train_config(data: dict) -> dict:
     """A record's ``train_config`` object with the fields added since it was written at the value
-    that run had (runs from before ``new_skill.num_critics`` trained one critic), and the fields
-    removed since (``REMOVED_FIELDS``) dropped where they held their "off" value (ValueError
-    naming the field otherwise; ``init_log_entropy_weight`` only mattered with a floor)."""
+    that run had (runs from before ``new_skill.num_critics`` trained one critic). A field removed
+    since (docs/research/pruned.md) stays in it, and reading it as a config fails naming the field."""
     data = dict(data)
-    for (section, name), off in REMOVED_FIELDS.items():
-        sub = data.get(section)
-        if isinstance(sub, dict) and name in sub:
-            if off is not None and sub[name] != off:
-                raise ValueError(f"{section}.{name} = {sub[name]!r}: a setting removed from the code "
-                                 f"(docs/research/pruned.md); only {off!r} reads")
-            data[section] = {k: v for k, v in sub.items() if k != name}
     if isinstance(data.get("new_skill"), dict) and "num_critics" not in data["new_skill"]:
         data["new_skill"] = dict(data["new_skill"], num_critics=1)
     return data
