@@ -1,5 +1,6 @@
-"""The repository's layout contracts: tasks/ stands alone, and docs/design.md has every section the
-code points to."""
+"""The repository's layout contracts: tasks/ stands alone (it imports nothing of parallel_skills,
+training or research), docs/design.md has every section the code points to, and every link and
+docs/ path of README.md and docs/ exists."""
 
 import glob
 import os
