@@ -1,5 +1,5 @@
 """The accelerator run: one command that answers, on one accelerator and within 8 minutes wall,
-what docs/scaling.md so far only projects from CPU measurements.
+what docs/research/scaling.md so far only projects from CPU measurements.
 
 Parts (each in its own process under its own time cap, so that one slow compile or one slow
 learner cannot eat the window; a part stopped at its cap keeps what it measured until then):
@@ -24,7 +24,7 @@ as they come and are written to ``OUT/accelerator.json`` (``OUT/<part>.json`` pe
     python bench/accelerator.py --parts env,lift --cap lift=300 --out /tmp/accel
 
 On the lent machine (it lacks mujoco, mujoco-mjx, brax and flashbax; ``bench/device_wheels.py``
-downloads them as wheels into the git-ignored ``.whl/``): docs/scaling.md "The accelerator run".
+downloads them as wheels into the git-ignored ``.whl/``): docs/research/scaling.md "The accelerator run".
 """
 
 from __future__ import annotations
@@ -341,7 +341,7 @@ def run_parts(names, sizes: dict, caps: dict, out: str, jobs: int, on_result) ->
 
 
 def summary(parts: dict) -> list:
-    """The figures of docs/scaling.md's accelerator table, one line each."""
+    """The figures of docs/research/scaling.md's accelerator table, one line each."""
     lines = []
     for name, r in parts.items():
         res, head = r.get("results", {}), f"{name:<10} {r['status']:<9} {r['wall_s']:6.1f} s of {r['cap_s']} s"

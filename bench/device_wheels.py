@@ -9,7 +9,7 @@ The versions are the ones installed here (what the suite ran against), else ``PI
 
     python bench/device_wheels.py            # -> .whl/*.whl and the command to run on the machine
 
-The command (docs/scaling.md "The accelerator run"), with ``.whl`` carried:
+The command (docs/research/scaling.md "The accelerator run"), with ``.whl`` carried:
 
     python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \\
         --target /tmp/site .whl/*.whl && export PYTHONPATH=/tmp/site:$PWD || exit

@@ -1,6 +1,6 @@
 """Where an iteration's time goes, at a recipe's resolved config: acting (collect + replay insert),
 each learner's updates, and one evaluation (new skill alone + scheduler alone), measured in one run
-on the same state (replay filled by a few iterations first). The CPU goals of docs/scaling.md
+on the same state (replay filled by a few iterations first). The CPU goals of docs/research/scaling.md
 are about this split: on a CPU the learners are FLOP-bound, so their share is what a recipe buys.
 
     python bench/iteration_breakdown.py                      # the device's default recipe, lift

@@ -3,14 +3,14 @@
 other, printing env steps/s after the first evaluation, resident memory at it and at most, and the
 ratios. glibc raises its threshold, up to 32 MiB, whenever an mmapped block is freed; host buffers
 of a few MiB (a 100k-row replay's columns, their checkpoint copies) then come from the heap and
-fragment it, so resident memory creeps up (docs/scaling.md, "Stack memory").
+fragment it, so resident memory creeps up (docs/research/scaling.md, "Stack memory").
 
     python bench/mmap_threshold.py                           # lift, 100k replay, 120k env steps
     python bench/mmap_threshold.py --replay_size 300000 --num_timesteps 300000
 
 Pin it to one core (``taskset -c N``) for a ratio that another process does not disturb. The run
 here writes no checkpoints (``training.run`` copies the replay to the host for each), so it measures
-the speed cost of the fixed threshold more than the memory it saves (docs/scaling.md, "Memory with
+the speed cost of the fixed threshold more than the memory it saves (docs/research/scaling.md, "Memory with
 a smaller replay").
 """
 

@@ -1,4 +1,4 @@
-"""The shipped skill library: ``<library>/<skill>.npz`` + ``.json`` sidecars (docs/skills.md).
+"""The shipped skill library: ``<library>/<skill>.npz`` + ``.json`` sidecars (docs/research/skills.md).
 
 Installed with the package as package data, so it is found the same way in a checkout, an
 editable install and a normal ``pip install .``: ``library_root()``. Loading skills from it is

@@ -208,14 +208,14 @@ class NewSkillConfig:
     # Q'(s', μ'(s')), so Q values the deterministic read-out, the policy the new skill is evaluated
     # and deployed as). With "sampled", a state where the mean dwells (holding a cube over its
     # target) is valued as the sampled policy that leaves it on its noise, so dwelling costs only
-    # discount and CRR's weights cannot single out the one leaving step (docs/skills.md).
+    # discount and CRR's weights cannot single out the one leaving step (docs/research/skills.md).
     td_target_action: str = "sampled"
     # > 1: clipped double Q (Fujimoto et al. 2018): independent critics, the TD target and the CRR
     # advantage use their minimum. With one critic (CRR as in the paper) the new skill's Q drifted
     # above any achievable return on sparse stack (114 > r_max/(1-γ) = 100 at rewarded replay
     # states; 2.5-8x the measured return at hover states); two critics keep it below the bound, but
-    # did not make stack learn within 200k steps (docs/learning.md), so the default stays 1. The
-    # ``parallel`` recipe takes 2 (docs/scaling.md: lift at 1,024 envs holds on every seed with them).
+    # did not make stack learn within 200k steps (docs/research/learning.md), so the default stays 1. The
+    # ``parallel`` recipe takes 2 (docs/research/scaling.md: lift at 1,024 envs holds on every seed with them).
     num_critics: int = 1
     # τ > 0 (beyond the paper): keep an exponential moving average of the policy's parameters,
     # ema ← ema + τ·(θ − ema) after every update (Polyak averaging of the iterates), and deploy it:
@@ -235,7 +235,7 @@ class NewSkillConfig:
     # bootstraps there, so Q(s, a) values what the new skill itself does after a. With
     # "behaviour", holding a cube over its target is credited with the release that the
     # scheduler's next skill makes within n steps, so the new skill's critic does not rank
-    # releasing above holding (docs/skills.md).
+    # releasing above holding (docs/research/skills.md).
     n_step_returns: str = "behaviour"
     # α = 1: pure CRR; α < 1: loss = α·CRR + (1 − α)·L_baseline (App. B: every baseline shares
     # this mix and the paper sweeps α ∈ {0, 0.5, 1}).
@@ -260,7 +260,7 @@ class NewSkillConfig:
     # near-zero floor, the weighted log-likelihood lets the std collapse on easy states and
     # all but ignore the mean's error on hard ones (the gradient on the mean scales with 1/std²):
     # cloning the scripted lift with min_std 1e-3 gave success 0.00, with 0.05 0.97
-    # (docs/learning.md). 0.05 keeps every state's error in the loss.
+    # (docs/research/learning.md). 0.05 keeps every state's error in the loss.
     min_std: float = 0.05
     grad_clip_norm: float = 40.0
 
@@ -294,7 +294,7 @@ class TrainConfig:
     # (initialised from one library skill: its parameters and observation statistics, the latter
     # then kept fixed), "kl_reg" / "dagger" (the skills as the prior / teacher of its loss:
     # NewSkillConfig.baseline). "rhpo": a mixture of the frozen skills and the new skill chosen at
-    # every step (parallel_skills.rhpo). Paper App. B; the README's "Baselines"; ``parallel_skills.methods``.
+    # every step (parallel_skills.rhpo). Paper App. B; README "Configure"; ``parallel_skills.methods``.
     method: str = "skills"
     eval_episodes: int = 16
     eval_every: int = 20  # iterations between evaluations
@@ -306,7 +306,7 @@ class TrainConfig:
     # Std of Gaussian noise added to the frozen skills' actions while collecting (not in
     # evaluation). The paper's skills are stochastic Gaussian policies; deterministic (e.g.
     # scripted) skills give the new skill no data off their exact paths to learn recovery
-    # from: cloning scripted lift from its noise-free paths fails (docs/learning.md).
+    # from: cloning scripted lift from its noise-free paths fails (docs/research/learning.md).
     skill_noise_std: float = 0.3
     # Fraction of the training envs (the first round(f · num_envs)) that collect as the greedy
     # evaluation acts: argmax decisions, the new skill's mean action, no collection noise (beyond
@@ -406,7 +406,7 @@ RECIPE_SIZES = {("cpu", True): (32, 300_000), ("parallel", True): (1024, 300_000
 
 def recipe_values(recipe: str, num_envs: int, unroll_length: int) -> dict:
     """The learner fields a recipe sets: ``{(learner, field): value}``, learner "scheduler" or
-    "new_skill" (and ``RECIPE_UNROLL``: its unroll length). Measured in docs/scaling.md.
+    "new_skill" (and ``RECIPE_UNROLL``: its unroll length). Measured in docs/research/scaling.md.
 
     * ``paper``: nothing (App. B.3: batches 128 / 256, samples per insert 100 / 50, one-step CRR
       with exp weights). At 4,096 envs × 25 steps that is 80,000 + 20,000 updates per iteration.
@@ -415,16 +415,16 @@ def recipe_values(recipe: str, num_envs: int, unroll_length: int) -> dict:
       warm-up for the scheduler (Eq. 3's long-horizon values first), and for the new skill 10-step
       TD targets, which carry the sparse reward back with 4× fewer samples than the one-step
       recipe needed (64), with the paper's CRR exp weights (until 2026-12-04 the indicator's, whose
-      mean action held the cube over the target on stack and never let go: docs/scheduler.md §8);
+      mean action held the cube over the target on stack and never let go: docs/research/scheduler.md §8);
       and for the scheduler 10-step targets within skill executions (``SchedulerConfig.n_step``;
       one-step Eq. 3 until 2026-12-04), with which it learns triple stack within 3M env steps
-      (docs/scheduler.md §1, §9).
+      (docs/research/scheduler.md §1, §9).
     * ``parallel`` (the default on an accelerator): one env step per env per iteration and a fixed
       32 updates of batches that grow with the envs: scheduler batch 25·steps/8 × 8 updates
       (25 samples per env step, 4× below the paper's 100), new skill batch = steps × 24 updates
       (24 per env step, the paper's 50 / 2.1), 10-step TD targets, two new-skill critics (clipped
       double Q; since 2026-12-06: every seed of kinematic lift at 1,024 envs reaches 0.8 and holds
-      ≥ 0.59 after it, where one critic's did not, docs/scaling.md); the update-counted schedules
+      ≥ 0.59 after it, where one critic's did not, docs/research/scaling.md); the update-counted schedules
       (warm-up, target periods) are shortened to keep their env-step meaning at 1,024 envs.
     """
     if recipe not in RECIPES:

@@ -1,4 +1,4 @@
-"""The methods a run trains with (``TrainConfig.method``; paper App. B, README "Baselines"): each
+"""The methods a run trains with (``TrainConfig.method``; paper App. B, README "Configure"): each
 one ``Method`` object saying who acts, which learners run on what batches, and the config
 defaults it sets (``Method.resolve``). The trainer (``train``), the config (``config``) and the
 command line (``training.run``) read these objects and never branch on a method's name; a new
@@ -75,7 +75,7 @@ class Method:
         return cfg, notes
 
 
-# The CRR mix α the paper's baselines take unless given (README "Baselines").
+# The CRR mix α the paper's baselines take unless given (README "Configure").
 MIX_ALPHA = 0.5
 
 _REGISTRY: Dict[str, Method] = {}

@@ -3,7 +3,7 @@ trajectories of length 10; docs/design.md "New skill").
 
 With 1-step TD the new skill's critic learns a sparse reward only by bootstrapping through its
 own, usually wrong, values: on stack, where the reward starts tens of steps after the gripper
-opens, it ranked "keep holding" above "open" at hover states (docs/learning.md). n-step returns
+opens, it ranked "keep holding" above "open" at hover states (docs/research/learning.md). n-step returns
 carry the observed rewards of the next n steps straight into Q(s_t, a_t):
 
     R_t = Σ_{j<m} γ^j r_{t+j},    y_t = R_t + γ^m · d_{t+m−1} · E_{a'~π} Q'(s_{t+m}, a'),

@@ -8,7 +8,7 @@ that copy is asynchronous (jax 0.10.2: 64 of 400 1.6 MB arguments were not ready
 function started), and the host function's first ``np.asarray`` waits for it from inside an XLA
 worker thread. When that worker is the one thread XLA has (a process pinned to one core) the wait
 never ends: the mujoco backend deadlocked this way in long OP3 get-up searches (batch 200 × ~1 kB
-physics states; docs/op3_skills.md). ``host_call`` hands the host function the NumPy arrays the XLA
+physics states; docs/research/op3_skills.md). ``host_call`` hands the host function the NumPy arrays the XLA
 callback receives, with no copy and nothing to wait for, and is otherwise the same primitive:
 no JVP / transpose, and under ``vmap`` every argument is broadcast to the batch (leading axis), so
 one call receives the whole env batch.

@@ -135,7 +135,7 @@ def test_shipped_walk_steers_toward_the_goal():
     """The shipped walk's ``steer`` (< 0: the controller's hip-yaw sign) turns the torso toward the
     goal direction: over 8 standing starts and 6 s, the mean cos(heading, goal) is well above that
     of the same gait with steer 0 (which ignores the goal), and nothing falls."""
-    from training.experiments import op3_skills as O
+    from research import op3_skills as O
 
     env = O.make_env("walk", episode_length=240)
     shipped = C.load("walk")

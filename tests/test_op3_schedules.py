@@ -1,11 +1,11 @@
-"""training/experiments/op3_schedules.py: the schedule grammar and the per-step skill choice."""
+"""research/op3_schedules.py: the schedule grammar and the per-step skill choice."""
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from training.cli import UsageError
-from training.experiments import op3_schedules as S
+from research import op3_schedules as S
 
 
 def test_parse_schedule():

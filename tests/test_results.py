@@ -50,36 +50,88 @@ def test_a_value_changed_by_hand_in_the_archive_is_caught(tmp_path):
     assert results.main(["--archive", str(archive), "--out", str(out), "--check"]) == 1
 
 
-def _readme_tables():
-    """(the docs/results file it names, the table's lines) for each table in README's Results section
-    whose preceding paragraph links a docs/results/*.md file."""
-    text = open(os.path.join(ROOT, "README.md"), encoding="utf-8").read()
+def _readme_result_rows(text: str):
+    """(the docs/results file, the row's cells that quote it) for each row of a table in the
+    "## Results" section of ``text`` (a README): a row that links a docs/results/*.md file quotes
+    it in every cell but the first two (task, method) and the link's own; a row that links none
+    quotes the file its table's preceding paragraph links, in every cell but the first."""
     section = text.split("\n## Results", 1)[1].split("\n## ", 1)[0].splitlines()
-    tables, i = [], 0
+    rows, i = [], 0
     while i < len(section):
         if section[i].startswith("|") and i + 1 < len(section) and section[i + 1].startswith("| ---"):
             j = i
             while j < len(section) and section[j].startswith("|"):
                 j += 1
-            before = "\n".join(section[max(0, i - 4):i])
-            for name in LINK.findall(before):
-                tables.append((name, section[i + 2:j]))
+            before = LINK.findall("\n".join(section[max(0, i - 4):i]))
+            for row in section[i + 2:j]:
+                cells = row.strip().strip("|").split("|")
+                linked = [c for c in cells if LINK.search(c)]
+                if linked:
+                    quoted = [c for c in cells[2:] if not LINK.search(c)]
+                    rows += [(name, row, quoted) for name in LINK.findall(linked[0])[:1]]
+                else:
+                    rows += [(name, row, cells[1:]) for name in before]
             i = j
         else:
             i += 1
-    return tables
+    return rows
 
 
 def test_readme_result_tables_quote_their_docs_results_files():
-    tables = _readme_tables()
-    assert tables, "README Results names no docs/results/*.md file before a table"
-    for name, rows in tables:
+    rows = _readme_result_rows(open(os.path.join(ROOT, "README.md"), encoding="utf-8").read())
+    assert rows, "README's Results section has no table row that names a docs/results/*.md file"
+    for name, row, cells in rows:
         source = open(os.path.join(DOCS, name), encoding="utf-8").read()
         have = set(NUMBER.findall(source))
-        for row in rows:
-            cells = row.strip("|").split("|")[1:]  # the first cell names the row
-            missing = [n for n in NUMBER.findall("|".join(cells)) if n not in have]
-            assert not missing, f"README row {row!r}: {missing} not in docs/results/{name}"
+        missing = [n for n in NUMBER.findall("|".join(cells)) if n not in have]
+        assert not missing, f"README row {row!r}: {missing} not in docs/results/{name}"
+
+
+def test_a_readme_number_missing_from_its_file_is_caught():
+    table = ("intro\n\n## Results\n\n| task | method | new skill | file |\n| --- | --- | --- | --- |\n"
+             "| lift | skills | 0.94 ± 0.06 | [lift](docs/results/lift.md) |\n"
+             "| lift | skills | 0.93 ± 0.999 | [lift](docs/results/lift.md) |\n\n## Next\n")
+    rows = _readme_result_rows(table)
+    assert [(name, cells) for name, _, cells in rows] == [("lift.md", [" 0.94 ± 0.06 "]), ("lift.md", [" 0.93 ± 0.999 "])]
+    have = set(NUMBER.findall(open(os.path.join(DOCS, "lift.md"), encoding="utf-8").read()))
+    assert all(n in have for n in NUMBER.findall(rows[0][2][0]))
+    assert "0.999" not in have and "0.999" in NUMBER.findall(rows[1][2][0])
+
+
+def _copy_variant(archive, task, variant, name):
+    dest = archive / task / name
+    shutil.copytree(os.path.join(ARCHIVE, task, variant), dest)
+    return dest
+
+
+def _status(path):
+    return results.variant_status(os.path.basename(path), results.read_variant(str(path)))
+
+
+def test_the_current_defaults_rows_are_found_by_their_config(tmp_path):
+    """A variant whose runs' train config is today's default is marked default whatever its name;
+    the same runs with a config field changed that the name does not set are history, and with
+    the name setting it, current; runs without a config.json, or named archived, are history."""
+    default = "skills-scheduler_n_step=10-crr_mode=exp"
+    archive = tmp_path / "paper_runs"
+    assert _status(os.path.join(ARCHIVE, "stack", default)) == "default"
+    assert _status(_copy_variant(tmp_path / "renamed", "stack", default, "skills")) == "default"
+    assert _status(_copy_variant(archive, "stack", default, "default")) == "default"
+    assert _status(_copy_variant(archive, "stack", default, "skills-archived_x")) == "history"
+    assert _status(os.path.join(ARCHIVE, "stack", "skills")) == "history"  # the recipe before (indicator weights)
+    assert _status(os.path.join(ARCHIVE, "stack", "scratch")) == "history"  # no config.json
+    for name, want in (("skills", "history"), ("skills-replay_size=1000", "current")):
+        path = _copy_variant(archive, "stack", default, name)
+        for seed in os.listdir(path):
+            record = path / seed / "config.json"
+            data = json.loads(record.read_text())
+            data["train_config"]["replay_size"] = 1000
+            record.write_text(json.dumps(data))
+        assert _status(path) == want, name
+    table = results.task_table(str(archive), "stack")
+    head, history = table.split("\n## History\n")
+    assert f"| **default** (default) |" in head and "| skills-replay_size=1000 |" in head
+    assert "| skills-archived_x |" in history and "| skills |" in history
 
 
 def test_no_file_under_docs_results_holds_a_machine_path():

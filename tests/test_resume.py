@@ -337,10 +337,10 @@ def test_load_checkpointed_run_reads_a_named_or_the_latest_checkpoint(uninterrup
 
 
 def test_readouts_of_a_checkpoint(uninterrupted, tmp_path, capsys):
-    """training.experiments.readouts: the new skill of the run's latest checkpoint read out as its
+    """research.readouts: the new skill of the run's latest checkpoint read out as its
     mean, sampled and critic-weighted policy on the same resets; the same numbers twice; bad input
     is one line and exit 2, the run untouched."""
-    from training.experiments import readouts
+    from research import readouts
 
     _, run = uninterrupted
     before = sorted(os.listdir(run))
@@ -368,7 +368,7 @@ def test_readouts_of_a_checkpoint(uninterrupted, tmp_path, capsys):
 
 
 def test_action_trace_of_a_checkpoint(uninterrupted, tmp_path, capsys):
-    """training.experiments.action_trace: the checkpoint's new skill with its mean action, one action
+    """research.action_trace: the checkpoint's new skill with its mean action, one action
     dimension's mean and std and the named observation entries per step; its first step is the
     policy's mean (and its critic's values) at the reset observation, computed here apart; bad input is
     one line."""
@@ -377,14 +377,16 @@ def test_action_trace_of_a_checkpoint(uninterrupted, tmp_path, capsys):
     from parallel_skills import learners
     from parallel_skills import normalization as obs_norm
     from tasks.manipulation import layout as L
-    from training.experiments import action_trace, readouts
+    from research import action_trace
+    from training.run_files import load_checkpointed_run
 
     _, run = uninterrupted
     out = action_trace.main([run, "--episodes", "2", "--every", "200", "--obs", "finger_angle,green_pose",
                              "--json", str(tmp_path / "t.json")])
     length = out["mean"].shape[0]
     assert out["mean"].shape == out["std"].shape == (length, 2) and out["green_pose"].shape == (length, 2, 3)
-    env, trainer, state, _ = readouts.load_run_state(run)
+    loaded = load_checkpointed_run(run)
+    env, trainer, state = loaded.env, loaded.trainer(), loaded.state
     obs = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 2)).obs
     mean, std = learners.make_new_skill_apply(int(env.action_size), trainer.config.new_skill)(
         state.new_skill.policy_params, obs_norm.normalize(state.normalizer, obs))
@@ -423,7 +425,7 @@ def test_action_trace_of_a_checkpoint(uninterrupted, tmp_path, capsys):
 def test_over_target_summary_counts_the_steps_held_over_the_target():
     """action_trace --over: the steps where TOP is held within 0.03 m horizontally and > 0.03 m above
     BOTTOM, and the means over them, on a hand-made two-episode trace."""
-    from training.experiments.action_trace import over_target_summary
+    from research.action_trace import over_target_summary
 
     t, e = 4, 2
     top = np.zeros((t, e, 3))
@@ -444,11 +446,11 @@ def test_over_target_summary_counts_the_steps_held_over_the_target():
 
 
 def test_replay_census_counts_the_stored_rows_by_sign_and_skill(uninterrupted, monkeypatch, capsys):
-    """training.experiments.replay_census: the held-over test on hand-made observations; on the
+    """research.replay_census: the held-over test on hand-made observations; on the
     checkpoint's replay (every stored row taken as "over"), the up / down parts and their per-skill
     rows and CRR weights add up; bad input is one line."""
     from tasks.manipulation import layout as L
-    from training.experiments import replay_census
+    from research import replay_census
     from training.run_files import load_checkpointed_run
 
     obs = np.zeros((3, L.OBS_SIZE), np.float32)

@@ -1,6 +1,6 @@
 """The scheduler's n-step targets within skill executions (SchedulerConfig.n_step;
 nstep.execution_nstep_fields, replay.SchedulerNStepTransition, learners.scheduler_targets) and the
-scheduler diagnostics of every iteration / evaluation (docs/scheduler.md)."""
+scheduler diagnostics of every iteration / evaluation (docs/research/scheduler.md)."""
 
 import dataclasses
 

@@ -229,7 +229,7 @@ def test_accelerator_default_is_the_parallel_recipe_with_at_most_32_updates_per_
     # Selectable on a CPU (1,024 envs by default there); the paper's settings stay reachable.
     par, _ = resolve(TrainConfig(recipe="parallel"), backend="cpu")
     assert par.num_envs == 1024 and learner_schedule(par)["new_skill"]["updates_per_iteration"] == 24
-    assert par.new_skill.num_critics == 2 and gpu.new_skill.num_critics == 2  # clipped double Q (docs/scaling.md)
+    assert par.new_skill.num_critics == 2 and gpu.new_skill.num_critics == 2  # clipped double Q (docs/research/scaling.md)
     assert resolve(TrainConfig(), backend="cpu")[0].new_skill.num_critics == 1  # the cpu recipe: one, as the paper
     paper, _ = resolve(TrainConfig(recipe="paper"), backend="gpu")
     assert learner_schedule(paper)["scheduler"]["updates_per_iteration"] == 80_000

@@ -34,7 +34,7 @@ from training.cli import (Parser, UsageError, check_writable, main_guard, nonneg
 from training.rundir import exported_budget, read_record
 
 STAGES = ("lift_green", "lift_yellow", "lift_blue", "stack")
-# Env steps per stage on a CPU: kinematic lift reaches 0.8-0.9 after 250k-300k (docs/learning.md);
+# Env steps per stage on a CPU: kinematic lift reaches 0.8-0.9 after 250k-300k (docs/research/learning.md);
 # stack's new skill alone 0.13 at 1M, 0.84-0.88 at 2M (seed 0, README Results).
 DEFAULT_TIMESTEPS = {"lift": 300_000, "stack": 2_000_000}
 # Arguments that only set budgets: a rerun may raise them (the stages below them are extended).

@@ -27,7 +27,7 @@ printed is ``success=<fraction> return=<mean>``.
 ``--actions`` (Gaussian-MLP policies: a skill ``.npz`` or an export's new skill): ``mean`` (default,
 the deterministic read-out that ``eval/new_skill_success`` reports) or ``sampled``: clip(mean + std·ε,
 −1, 1) with the policy's own std and std floor, as the trainer collects with it and as
-``eval/new_skill_sampled_success`` reports (docs/scheduler.md §5: the learnt new skill *is* the
+``eval/new_skill_sampled_success`` reports (docs/research/scheduler.md §5: the learnt new skill *is* the
 Gaussian; its mean can succeed much less often). With ``:scheduler`` it applies to the new skill
 only: the choices stay greedy and the frozen skills noise-free, so the difference to ``mean`` is
 what the scheduler's runs of the new skill owe to its Gaussian.
@@ -37,7 +37,7 @@ the scheduler's two categorical heads instead of taking their argmax, and ``--sk
 clip(a + STD·ε, −1, 1) to the frozen skills' actions, as the trainer's collection noise
 (``--skill_noise_std``, 0.3) does. ``--decisions sampled --actions sampled --skill_noise 0.3`` is the
 scheduler as it collects (``eval/scheduler_sampled_success``); the defaults are the greedy scheduler
-(``eval/scheduler_success``), so each read-out of docs/skills.md can be measured apart, with as many
+(``eval/scheduler_success``), so each read-out of docs/research/skills.md can be measured apart, with as many
 episodes as wanted.
 """
 

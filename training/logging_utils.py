@@ -34,7 +34,7 @@ def release_free_memory() -> bool:
     """Return the C heap's free memory to the operating system (glibc ``malloc_trim(0)``; False and
     nothing done elsewhere). XLA's compiler frees hundreds of MiB after compiling the training
     iteration, but glibc keeps freed memory in its arenas: a stack run measured 1,607 MiB resident
-    at its first evaluation after a cold compile and 942 MiB after the trim (docs/scaling.md, "Stack
+    at its first evaluation after a cold compile and 942 MiB after the trim (docs/research/scaling.md, "Stack
     memory"). ``training.run`` trims before each rss_mb reading, so rss_mb tracks live memory."""
     global _libc
     if _libc is None:

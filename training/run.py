@@ -45,7 +45,7 @@ from training.logging_utils import Progress
 from training.rundir import RunRecord
 
 # CPU: the README quickstart must end within 10 minutes on 2 cores (kinematic lift, CPU recipe,
-# seed 0: 0.84 at 218k and 256k; other seeds are slower; README, docs/scaling.md).
+# seed 0: 0.84 at 218k and 256k; other seeds are slower; README, docs/research/scaling.md).
 DEFAULT_TIMESTEPS = {"cpu": 256_000, "accelerator": 20_000_000}
 # Defaults of the flags that are no config field, applied after parsing (None = "not given":
 # --resume rejects given flags that conflict with the run's config.json; so do generated flags).
@@ -63,7 +63,7 @@ def build_parser():
     from training.skill_library import SET_NAMES, SOURCES
 
     p = Parser(prog="python -m training.run", description=__doc__.splitlines()[0],
-               epilog="The learners' defaults shown are the paper's (App. B.3): the recipe sets its own (docs/scaling.md) "
+               epilog="The learners' defaults shown are the paper's (App. B.3): the recipe sets its own (docs/research/scaling.md) "
                       "for the fields that no flag and no --config file sets.")
     p.add_argument("--task", default=None, help="task name (see tasks.names()); default lift")
     p.add_argument("--physics", default=None, help=f"one of {', '.join(tasks.PHYSICS)}; default kinematic "
@@ -94,7 +94,7 @@ def build_parser():
     p.add_argument("--coordinator", default=None,
                    help="HOST:PORT of process 0: a multi-process run over several hosts (jax.distributed), with "
                         "--num_processes and --process_id; every process runs the same command with the same --out "
-                        "(a shared directory), process 0 alone writes its logs, metrics and exports (README \"Devices\")")
+                        "(a shared directory), process 0 alone writes its logs, metrics and exports (README \"One GPU, many GPUs, many hosts\")")
     p.add_argument("--num_processes", type=positive_int, default=None, help="processes of a multi-process run")
     p.add_argument("--process_id", type=nonnegative_int, default=None, help="this process: 0 .. num_processes - 1")
     p.add_argument("--distributed", action="store_true",
@@ -106,9 +106,9 @@ def build_parser():
                    help="leave the replay buffer out of checkpoints (smaller; a resume then starts with an "
                         "empty buffer and is no longer identical to an uninterrupted run)")
     config_flags.add_config_flags(p, RunConfig())
-    notes = {"method": "; ".join(f"{m.name}: {m.help}" for m in methods.all_methods()) + "; README \"Baselines\"",
+    notes = {"method": "; ".join(f"{m.name}: {m.help}" for m in methods.all_methods()) + "; README \"Configure\"",
              "recipe": "cpu: 32 envs, few samples per env step; parallel: batches that grow with the envs, 32 "
-                       "updates per iteration; paper: App. B.3 (docs/scaling.md)",
+                       "updates per iteration; paper: App. B.3 (docs/research/scaling.md)",
              "eval_every": "(default: 20 evaluations per run)"}
     config_flags.add_config_flags(p, BASE_CONFIG, notes=notes, computed=("eval_every",))
     return p

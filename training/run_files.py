@@ -26,7 +26,7 @@ CSV_FIELDS = ["env_steps", "wall_time", "eval/new_skill_success", "eval/new_skil
               "scheduler/critic_loss", "new_skill/critic_loss", "scheduler/policy_entropy_i", "skill_histogram",
               "length_histogram", "skill_steps", "skill_runs", "scheduler/q_mean", "new_skill/q_mean",
               "new_skill/crr_weight_mean", "new_skill/policy_log_std_mean", "rss_mb",
-              # Scheduler diagnostics (docs/scheduler.md): as it collects, its decisions, its replay.
+              # Scheduler diagnostics (docs/research/scheduler.md): as it collects, its decisions, its replay.
               "eval/scheduler_sampled_success", "eval/scheduler_sampled_return", "eval/scheduler_discounted_return",
               "eval/scheduler_value_at_reset", "decision_entropy_i", "decision_entropy_k", "skill_share",
               "length_share", "replay_rewarded_fraction", "scheduler/policy_entropy_k",
@@ -102,13 +102,12 @@ def skill_sources(skills, physics: str) -> list[dict]:
     return out
 
 
-def restore_run(out, ckpt, csv_path, env, skills, resolved, seed: int, steps=None, mesh=None, primary: bool = True):
-    """The checkpointed (state, host state) of a resumed run: its latest checkpoint of ``steps``
-    (default: all) that restores, an unreadable later one reported in one line on stderr
-    (``Checkpointer.restore_latest``); read only (``resume_files`` then updates the run directory,
-    on the primary process alone). ``mesh``: the state is restored onto it, each process reading
-    its own shards."""
-    from training.checkpointing import CheckpointError, abstract_training_state
+def restore_target(env, skills, resolved, seed: int, mesh=None) -> dict:
+    """What a checkpoint of a run of ``env``, ``skills`` and the resolved config restores into: the
+    keyword arguments of ``Checkpointer.restore`` / ``restore_latest`` (the state's structure, the
+    empty replay of a checkpoint without one and, with a ``mesh``, each leaf's sharding on it, so
+    that each process reads its own shards)."""
+    from training.checkpointing import abstract_training_state
 
     abstract, fresh_replay = abstract_training_state(env, skills, resolved, seed)
     shardings = None
@@ -116,9 +115,25 @@ def restore_run(out, ckpt, csv_path, env, skills, resolved, seed: int, steps=Non
         from parallel_skills.sharding import state_shardings
 
         shardings = state_shardings(abstract, mesh, resolved.num_envs)
+    return dict(abstract_state=abstract, fresh_replay=fresh_replay, shardings=shardings)
+
+
+def restore_state(ckpt, env, skills, resolved, seed: int, steps=None, mesh=None, on_skip=None):
+    """``(TrainingState, host state)`` of the latest of checkpoints ``steps`` (default: all) of
+    ``ckpt`` that restores (``restore_target``); read only. The checkpoint reader of resume and of
+    the read-outs of a run (``load_checkpointed_run``). CheckpointError when none restores."""
+    return ckpt.restore_latest(steps=steps, on_skip=on_skip, **restore_target(env, skills, resolved, seed, mesh))
+
+
+def restore_run(out, ckpt, csv_path, env, skills, resolved, seed: int, steps=None, mesh=None, primary: bool = True):
+    """The checkpointed (state, host state) of a resumed run (``restore_state``), an unreadable
+    later checkpoint reported in one line on stderr; read only (``resume_files`` then updates the
+    run directory, on the primary process alone)."""
+    from training.checkpointing import CheckpointError
+
     try:
-        state, host = ckpt.restore_latest(abstract, fresh_replay, steps=steps, shardings=shardings,
-                                          on_skip=report_skipped if primary else None)
+        state, host = restore_state(ckpt, env, skills, resolved, seed, steps, mesh,
+                                    on_skip=report_skipped if primary else None)
     except CheckpointError as e:
         raise UsageError(f"cannot resume: {e}") from None
     return state, checked_host(ckpt, csv_path, host, primary)
@@ -133,30 +148,33 @@ class CheckpointedRun(NamedTuple):
     state: Any  # TrainingState
     host: dict  # the checkpoint's host state (env_steps, csv_bytes, ...)
 
+    def trainer(self):
+        """The run's trainer (``parallel_skills.train.make_trainer``): its networks and evaluators."""
+        from parallel_skills.train import make_trainer
+
+        return make_trainer(self.env, self.skills, self.config)
+
 
 def load_checkpointed_run(run_dir: str, step: Optional[int] = None) -> CheckpointedRun:
     """The run in ``run_dir`` rebuilt from its config.json (env, skills, resolved config) and its
-    checkpoint ``step`` (default: the latest that restores). Reads only. UsageError (one line) when
-    ``run_dir`` is not a run, or no such checkpoint restores."""
+    checkpoint ``step`` (default: the latest that restores; ``restore_state``). Reads only.
+    UsageError (one line) when ``run_dir`` is not a run, or no such checkpoint restores."""
     import tasks
     from training import skill_library
-    from training.checkpointing import CheckpointError, Checkpointer, abstract_training_state
+    from training.checkpointing import CheckpointError, Checkpointer
 
     record = rundir.read_record(run_dir, "cannot read the run")
     resolved = record.config(f"{rundir.config_path(run_dir)} train_config")
     env = tasks.make(record.task, physics=record.physics, **record.env_overrides())
     skills = skill_library.load_skills(list(record.skills), record.physics, record.skill_source,
                                        env.observation_size, env.action_size, skill_dir=record.skill_dir)
-    abstract, fresh_replay = abstract_training_state(env, skills, resolved, int(record.seed))
     ckpt = Checkpointer(run_dir)
+    if step is not None and int(step) not in ckpt.steps():
+        raise UsageError(f"{run_dir}: no checkpoint at iteration {int(step)} (it has: "
+                         f"{', '.join(map(str, ckpt.steps())) or 'none'})")
     try:
-        if step is None:
-            state, host = ckpt.restore_latest(abstract, fresh_replay)
-        elif int(step) not in ckpt.steps():
-            raise UsageError(f"{run_dir}: no checkpoint at iteration {int(step)} (it has: "
-                             f"{', '.join(map(str, ckpt.steps())) or 'none'})")
-        else:
-            state, host = ckpt.restore(abstract, fresh_replay, step=int(step))
+        state, host = restore_state(ckpt, env, skills, resolved, int(record.seed),
+                                    steps=None if step is None else [int(step)])
     except CheckpointError as e:
         raise UsageError(f"{run_dir}: {e}") from None
     return CheckpointedRun(record, resolved, env, skills, state, host)
@@ -348,7 +366,7 @@ def common_steps(ckpts, outs) -> list:
 def restore_group(outs, ckpts, runs, env, skills, resolved, mesh=None):
     """The (state, host) of every run of a ``--seeds`` group at their latest common checkpoint that
     restores in all of them (an unreadable one in any run: the one before, reported on stderr)."""
-    from training.checkpointing import CheckpointError, CheckpointUnreadable, abstract_training_state
+    from training.checkpointing import CheckpointError, CheckpointUnreadable
 
     steps = common_steps(ckpts, outs)
     reasons = []
@@ -356,13 +374,7 @@ def restore_group(outs, ckpts, runs, env, skills, resolved, mesh=None):
         try:
             restored = []
             for out, c, r in zip(outs, ckpts, runs):
-                abstract, fresh_replay = abstract_training_state(env, skills, resolved, int(r.seed))
-                shardings = None
-                if mesh is not None:
-                    from parallel_skills.sharding import state_shardings
-
-                    shardings = state_shardings(abstract, mesh, resolved.num_envs)
-                state, host = c.restore(abstract, fresh_replay, step=step, shardings=shardings)
+                state, host = c.restore(step=step, **restore_target(env, skills, resolved, int(r.seed), mesh))
                 restored.append((state, checked_host(c, os.path.join(out, "metrics.csv"), host)))
         except CheckpointUnreadable as e:
             reasons.append((step, str(e)))

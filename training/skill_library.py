@@ -47,7 +47,7 @@ TABLE["stack_yellow_on_blue"] = (["reach_yellow", "lift_arm_closed", "lift_yello
                                   "lift_blue"])
 # Locomotion (paper Sec. 5): GetUpAndWalk composes the get-up and walking skills; GoalScoring adapts the
 # walking skill. The OP3 skills are the CEM-tuned controllers of tasks.locomotion.controllers
-# (checkpoints/op3/, docs/op3_skills.md), named after their dense skill tasks; the paper gives no
+# (checkpoints/op3/, docs/research/op3_skills.md), named after their dense skill tasks; the paper gives no
 # distractor skills for this domain.
 TABLE["getup_and_walk"] = (["op3_getup", "op3_walk"], [])
 TABLE["goal_scoring"] = (["op3_walk"], [])

@@ -11,7 +11,7 @@ SkillS runs, ``training.chain``, and are cloned here only where a chain's skill 
 later tasks bring it to, with ``--bc_prefix``). ``--start_states mixed`` (kinematic) draws every reset of cloning,
 fine-tuning and selection from the wider distribution of ``tasks.make``'s ``start_states`` (one
 cube on or beside another in two thirds of them): the states a chain's later stages bring a skill
-to. Two stages (docs/learning.md, docs/skills.md):
+to. Two stages (docs/research/learning.md, docs/research/skills.md):
 
 1. **Behaviour cloning** of the skill's scripted controller (``tasks.manipulation.scripted``) with
    DART-style data: ``--bc_envs`` × ``--bc_steps`` env steps that execute the scripted action plus

@@ -1,5 +1,5 @@
 """Scripted OP3 skills for the locomotion domain (issue #19): a get-up controller and a walking
-controller, the two skills the paper's GetUpAndWalk composes (docs/op3_skills.md).
+controller, the two skills the paper's GetUpAndWalk composes (docs/research/op3_skills.md).
 
 Each controller is a *stateless* pure JAX function ``fn(obs [233], key) -> action [20]`` in
 [-1, 1] (a Markov policy like any learned skill; wrap it with ``parallel_skills.Skill.from_fn``).
@@ -14,7 +14,7 @@ the head barely moves. A code that makes no sense (another skill acted before, o
 start) decodes to a valid state: the controllers recover from any observation.
 
 Parameters are flat float vectors (``GETUP_SPEC`` / ``WALK_SPEC`` name their parts; the CEM
-search in ``training/experiments/op3_skills.py`` tunes them); ``load(path)`` reads a tuned
+search in ``research/op3_skills.py`` tunes them); ``load(path)`` reads a tuned
 checkpoint (``checkpoints/op3/{getup,walk}.json``), ``get(name, params)`` builds a controller.
 
 Joint order (``model.JOINT_NAMES``): head_pan, head_tilt, l_sho_pitch, l_sho_roll, l_el,

@@ -332,7 +332,7 @@ for _name in list(PAIR_START_STATES):
     START_STATES[_name] = (f"half as 'table'; half with {_t} resting on {_b} (centred within 5 mm): "
                            f"a chain's precondition for the skill that comes after")
     # "..._loose": the precondition as a learnt skill leaves it (the neural stack_yellow_on_blue
-    # leaves yellow a median 12 mm off blue's centre, 0.4 rad turned, fingers closed: docs/skills.md).
+    # leaves yellow a median 12 mm off blue's centre, 0.4 rad turned, fingers closed: docs/research/skills.md).
     PAIR_START_STATES[_name + "_loose"] = PAIR_START_STATES[_name]
     START_STATES[_name + "_loose"] = (f"as {_name}, {_t}'s centre within 14 mm of {_b}'s (each axis), "
                                       f"turned by up to π/4, the fingers anywhere from closed to open")

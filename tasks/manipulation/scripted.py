@@ -113,7 +113,7 @@ def _approach(v: _View, c: int, prm: ControllerParams, close: bool):
     safe travel height: far away it travels high, over the cube it descends. Unlike a phase
     machine (rise, travel, align, descend), every command is a continuous function of the
     observation (up to the closing switch), which a neural policy can imitate (see
-    docs/skills.md)."""
+    docs/research/skills.md)."""
     cube = v.cubes[c]
     yaw_t = _grasp_yaw(v, c, prm)
     safe_z = jnp.maximum(v.top() + L.FINGER_BELOW_PINCH + prm.clearance, cube[2] + 0.045)

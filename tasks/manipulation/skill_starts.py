@@ -72,14 +72,43 @@ def parse(start_states: str) -> AfterSkill:
 
 
 def load_policy(spec: AfterSkill, obs_size: int, action_size: int):
-    """``act(obs [O]) -> action [A]``: the library skill's mean action, clipped to [-1, 1]."""
-    from parallel_skills.skills import Skill
+    """``act(obs [O]) -> action [A]``: the library skill's mean action, clipped to [-1, 1].
 
-    skill = Skill.load(library_file(spec.skill), obs_size=obs_size, action_size=action_size)
-    key = jax.random.PRNGKey(0)  # the mean action does not use it
+    The skill file (``Skill.save``'s format: ``policy/params/...`` arrays of the new-skill network,
+    ``obs_mean`` / ``obs_std``; the sidecar's ``hidden`` and ``action_size``) is read here, and its
+    network's mean rebuilt with flax as ``parallel_skills.networks.GaussianPolicy`` computes it (the
+    same layers, so the same numbers: ``tests/test_layout.py`` compares them), so that tasks/ needs
+    nothing of the algorithm."""
+    import json
+
+    import flax.linen as nn
+    import numpy as np
+
+    path = library_file(spec.skill)
+    with open(path[:-4] + ".json") as f:
+        meta = json.load(f)
+    with np.load(path) as data:
+        arrays = {k: jnp.asarray(data[k]) for k in data.files}
+    hidden, a_size = [int(h) for h in meta["hidden"]], int(meta["action_size"])
+    if arrays["obs_mean"].shape != (obs_size,) or a_size != action_size:
+        raise ValueError(f"skill {path} has observation size {arrays['obs_mean'].shape[0]} and action size "
+                         f"{a_size}; the task has {obs_size} and {action_size}")
+    params = {}
+    for key, value in arrays.items():
+        if key.startswith("policy/params/"):
+            node = params
+            *parents, leaf = key[len("policy/params/"):].split("/")
+            for name in parents:
+                node = node.setdefault(name, {})
+            node[leaf] = value
 
     def act(obs):
-        return jnp.clip(skill.apply(skill.params, obs, key), -1.0, 1.0)
+        x = jnp.clip((obs - arrays["obs_mean"]) / arrays["obs_std"], -10.0, 10.0)
+        for n, width in enumerate(hidden):
+            x = nn.Dense(width).apply({"params": params["torso"][f"dense_{n}"]}, x)
+            x = jnp.tanh(nn.LayerNorm().apply({"params": params["torso"]["layer_norm"]}, x)) if n == 0 else nn.elu(x)
+        raw_mean = jnp.split(nn.Dense(2 * a_size).apply({"params": params["head"]}, x), 2, axis=-1)[0]
+        return jnp.clip(jnp.tanh(raw_mean), -1.0, 1.0)
 
     return act
 

@@ -19,10 +19,18 @@ with the variant's budget = the most env steps any of its seeds reached:
   share of the env steps the scheduler gave the new skill in the last evaluation interval, wall
   time per run (minutes, as the run's last row records it) and resident memory (first → largest
   ``rss_mb``), per seed.
+
+Each variant has a status (``variant_status``), read from its seeds' config.json: **default** (its
+train config is what today's defaults resolve to for its method, ablation or skill set: the row
+marked in each table), **current** (today's defaults plus the settings its name says) or
+**history** (an earlier recipe or skill library, a setting since removed, or runs without a
+config.json): history variants go in a section of their own below the others.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
 import os
 import sys
@@ -38,6 +46,10 @@ NEW_SKILL, SCHEDULER, SAMPLED = "eval/new_skill_success", "eval/scheduler_succes
 # greedy with the new skill's sampled actions (runs since 2026-12-06; older ones: "–").
 SCHEDULER_SAMPLED, SCHEDULER_NEW_SAMPLED = "eval/scheduler_sampled_success", "eval/scheduler_new_skill_sampled_success"
 METHOD_ORDER = ("skills", "scratch", "finetune", "rhpo", "kl_reg", "dagger")
+# Variant names that future runs of today's defaults use: their rows are marked default as they are.
+DEFAULT_NAMES = ("default", "default-library", "parallel-4096")
+BASE_ALIASES = {"quickstart": "skills"}  # ``python -m training.run`` with no arguments: SkillS
+EVALUATION_FIELDS = ("eval_every", "eval_episodes")  # how often and how long a run evaluates: no training change
 HEADER = ("<!-- Written by `python -m training.experiments.results` from docs/results/paper_runs/{task}/; "
           "edit the runs, not this file (tests/test_results.py rebuilds it). -->")
 
@@ -65,10 +77,11 @@ def per_seed(values: Sequence[Optional[str]]) -> str:
 
 
 class SeedRun:
-    """One archived seed: its evaluation rows (``read_metrics`` rows with an env_steps value)."""
+    """One archived seed: its evaluation rows (``read_metrics`` rows with an env_steps value) and
+    its config.json record (a dict; None for runs archived without one)."""
 
-    def __init__(self, seed: int, rows: list):
-        self.seed, self.rows = seed, rows
+    def __init__(self, seed: int, rows: list, record: Optional[dict] = None):
+        self.seed, self.rows, self.record = seed, rows, record
 
     @property
     def last_steps(self) -> float:
@@ -111,8 +124,10 @@ def read_variant(path: str) -> list:
         metrics = os.path.join(path, name, "metrics.csv")
         if name.startswith("s") and name[1:].isdigit() and os.path.isfile(metrics):
             rows = [r for r in read_metrics(metrics) if isinstance(r.get("env_steps"), float)]
+            record = os.path.join(path, name, "config.json")
             if rows:
-                runs.append(SeedRun(int(name[1:]), rows))
+                runs.append(SeedRun(int(name[1:]), rows, json.load(open(record, encoding="utf-8"))
+                                    if os.path.isfile(record) else None))
     return sorted(runs, key=lambda r: r.seed)
 
 
@@ -127,11 +142,100 @@ def variant_kind(name: str) -> str:
 def variant_order(name: str) -> tuple:
     kinds = ("method", "ablation", "skill set")
     base = name.split("-")[0]
-    rank = METHOD_ORDER.index(base) if base in METHOD_ORDER else len(METHOD_ORDER)
+    rank = METHOD_ORDER.index(BASE_ALIASES.get(base, base)) if BASE_ALIASES.get(base, base) in METHOD_ORDER \
+        else len(METHOD_ORDER)
     return kinds.index(variant_kind(name)), rank, name != base, name
 
 
-def new_skill_row(name: str, runs: list) -> str:
+def known_fields(cls, data: dict) -> dict:
+    """The JSON object ``data`` of config class ``cls`` without the fields ``cls`` no longer has (a
+    recorded setting since removed: the variant's name says it where it was not the neutral value)."""
+    names = {f.name for f in dataclasses.fields(cls)}
+    out = {}
+    for key, value in data.items():
+        if key in names:
+            sub = getattr(cls(), key)
+            out[key] = known_fields(type(sub), value) if dataclasses.is_dataclass(sub) and isinstance(value, dict) \
+                else value
+    return out
+
+
+def setting_labels(field: str) -> set:
+    """The names a variant may give the dotted config field ``field`` (``training.experiments.paper``'s
+    label, or the field dotted with underscores: ``new_skill.crr_mode`` -> crr_mode, new_skill_crr_mode)."""
+    from training.experiments.paper import setting_label
+
+    return {setting_label(field), field.replace(".", "_")}
+
+
+def config_differences(a, b, prefix: str = "") -> list:
+    """The dotted fields two configs differ in (the evaluation-only fields ignored)."""
+    out = []
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if dataclasses.is_dataclass(x):
+            out += config_differences(x, y, f"{prefix}{f.name}.")
+        elif x != y and f.name not in EVALUATION_FIELDS:
+            out.append(prefix + f.name)
+    return out
+
+
+def default_config(base: str, recipe: str):
+    """The TrainConfig today's ``training.run`` resolves for variant ``base`` (a method, an ablation or
+    a skill set of ``training.experiments.paper``) on the device kind of ``recipe`` ("cpu": a CPU,
+    else an accelerator); None for a base that names none of them."""
+    from parallel_skills import config, methods
+    from training.experiments.paper import parse_variant
+    from training.run import BASE_CONFIG
+
+    try:
+        variant = parse_variant(BASE_ALIASES.get(base, base), methods.names())
+    except UsageError:
+        return None
+    cfg = config.from_dict(dataclasses.replace(BASE_CONFIG, method=variant.method), variant.config, base)
+    given = ["method"] + config.dotted_names(variant.config)
+    return config.resolve(cfg, backend="cpu" if recipe == "cpu" else "gpu", given=given)[0]
+
+
+def variant_status(name: str, runs: list) -> str:
+    """"default", "current" or "history" of an archived variant (module docstring), from its name
+    and its seeds' config.json records: history when a seed has no record, the name says
+    ``archived`` or a setting today's configs lack, the skills came from a ``--skill_dir``, or the
+    train config differs from today's defaults in a field the name does not set; default when it
+    differs in none and the name holds settings only; current otherwise."""
+    from parallel_skills import config
+    from training import rundir
+
+    if name in DEFAULT_NAMES:
+        return "default"
+    base, *parts = name.split("-")
+    records = [r.record for r in runs]
+    if any(r is None for r in records) or any(p.startswith("archived") for p in parts) \
+            or any(r.get("skill_dir") for r in records):
+        return "history"
+    live = set(f.name for f in dataclasses.fields(rundir.RunRecord))
+    for field in config.dotted_names(dataclasses.asdict(config.TrainConfig())):
+        live |= setting_labels(field)
+    named = {p.split("=", 1)[0] for p in parts if "=" in p}
+    if named - live:
+        return "history"
+    differing = set()
+    for record in records:
+        expected = default_config(base, record["train_config"].get("recipe"))
+        if expected is None:
+            return "history"
+        data = known_fields(config.TrainConfig, rundir.recorded_train_config(record["train_config"]))
+        differing |= set(config_differences(expected, config.from_dict(config.TrainConfig(), data, name)))
+    if any(not setting_labels(f) & named for f in differing):
+        return "history"
+    return "default" if not differing and all("=" in p for p in parts) else "current"
+
+
+def shown_name(name: str, status: str) -> str:
+    return f"**{name}** (default)" if status == "default" else name
+
+
+def new_skill_row(name: str, runs: list, status: str = "current") -> str:
     budget = max(r.last_steps for r in runs)
     cells, points = [], []
     for f in FRACTIONS:
@@ -145,11 +249,11 @@ def new_skill_row(name: str, runs: list) -> str:
     seeds = per_seed([None if h is None else f"{h[NEW_SKILL]:.2f}" for h in final])
     best = per_seed([None if r.best() is None else f"{r.best():.2f}" for r in runs])
     first = per_seed([None if r.first_at_least(0.8) is None else steps_label(r.first_at_least(0.8)) for r in runs])
-    return (f"| {name} | {per_seed([str(r.seed) for r in runs])} | {steps_label(budget)} | {' / '.join(points)} | "
+    return (f"| {shown_name(name, status)} | {per_seed([str(r.seed) for r in runs])} | {steps_label(budget)} | {' / '.join(points)} | "
             + " | ".join(cells) + f" | {seeds} | {best} | {first} |")
 
 
-def cost_row(name: str, runs: list) -> str:
+def cost_row(name: str, runs: list, status: str = "current") -> str:
     budget = max(r.last_steps for r in runs)
 
     def final(key):
@@ -163,7 +267,7 @@ def cost_row(name: str, runs: list) -> str:
                       for r in runs])
     wall = per_seed([f"{r.rows[-1]['wall_time'] / 60:.1f}" if isinstance(r.rows[-1].get("wall_time"), float)
                      else None for r in runs])
-    return (f"| {name} | {half(SCHEDULER)} | {final(SCHEDULER)} | {final(SCHEDULER_NEW_SAMPLED)} | "
+    return (f"| {shown_name(name, status)} | {half(SCHEDULER)} | {final(SCHEDULER)} | {final(SCHEDULER_NEW_SAMPLED)} | "
             f"{final(SCHEDULER_SAMPLED)} | {final(SAMPLED)} | {share} | {wall} | {per_seed([r.rss() for r in runs])} |")
 
 
@@ -180,27 +284,46 @@ def task_table(archive: str, task: str) -> str:
     if not variants:
         raise UsageError(f"no archived runs under {root} (expected {root}/<variant>/s<seed>/metrics.csv)")
     names = sorted(variants, key=variant_order)
+    status = {n: variant_status(n, variants[n]) for n in names}
+    names = sorted(names, key=lambda n: (variant_order(n)[:2], status[n] != "default", variant_order(n)[2:]))
     lines = [HEADER.format(task=task), "", f"# {task}: archived runs", "",
              "Each variant's budget is the most env steps any of its seeds reached; the columns are the last "
              "evaluation at or before ¼, ½ and all of it (their env steps named). Mean ± sample standard "
              "deviation (n − 1) over the seeds listed; one seed: its value. Evaluations: the runs' own "
-             "(32 episodes unless the run's config.json says otherwise).", ""]
+             "(32 episodes unless the run's config.json says otherwise).", "",
+             "**(default)** marks the variants whose train config is what today's defaults resolve to for "
+             "their method, ablation or skill set; the other rows above History are today's defaults with the "
+             "settings their names say. History: earlier recipes and skill libraries, settings since removed, "
+             "and runs archived without a config.json.", ""]
+    current = [n for n in names if status[n] != "history"]
+    history = [n for n in names if status[n] == "history"]
+    lines += _section(current, variants, status, "##")
+    if history:
+        lines += ["## History", ""] + _section(history, variants, status, "###")
+    return "\n".join(lines)
+
+
+def _section(names: list, variants: dict, status: dict, level: str) -> list:
+    """The new-skill tables (one per kind) and the cost table of ``names``."""
+    lines = []
     for kind in ("method", "ablation", "skill set"):
         group = [n for n in names if variant_kind(n) == kind]
         if not group:
             continue
-        lines += [f"## New skill alone: {kind}s" if kind != "skill set" else "## New skill alone: skill sets", "",
+        lines += [f"{level} New skill alone: {kind}s" if kind != "skill set" else f"{level} New skill alone: skill sets",
+                  "",
                   "| variant | seeds | budget | evaluations at | ¼ | ½ | budget | per seed at the budget | best evaluation "
                   "per seed | first ≥ 0.8 per seed |",
                   "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-        lines += [new_skill_row(n, variants[n]) for n in group] + [""]
-    lines += ["## Scheduler alone, sampled new skill, usage and cost (per seed, at the budget)", "",
-              "| variant | scheduler alone at ½ | scheduler alone | scheduler alone, the new skill's actions sampled | "
-              "scheduler as it collects (sampled) | new skill, sampled actions | new skill's share of the "
-              "last interval's env steps | wall time per run (min) | rss_mb first → max |",
-              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-    lines += [cost_row(n, variants[n]) for n in names] + [""]
-    return "\n".join(lines)
+        lines += [new_skill_row(n, variants[n], status[n]) for n in group] + [""]
+    if names:
+        lines += [f"{level} Scheduler alone, sampled new skill, usage and cost (per seed, at the budget)", "",
+                  "| variant | scheduler alone at ½ | scheduler alone | scheduler alone, the new skill's actions sampled | "
+                  "scheduler as it collects (sampled) | new skill, sampled actions | new skill's share of the "
+                  "last interval's env steps | wall time per run (min) | rss_mb first → max |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+        lines += [cost_row(n, variants[n], status[n]) for n in names] + [""]
+    return lines
 
 
 def archived_tasks(archive: str) -> list:

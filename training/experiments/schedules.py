@@ -1,5 +1,5 @@
 """Hand-written sequences of a manipulation task's frozen skills, and a uniform random scheduler:
-what a scheduler could earn with a skill set before any learning (docs/schedules.md).
+what a scheduler could earn with a skill set before any learning (docs/research/schedules.md).
 
     python -m training.experiments.schedules --task triple_stack \\
         stack_yellow_on_blue:150,stack_green_on_yellow stack_yellow_on_blue:100,stack_green_on_yellow random
@@ -20,7 +20,7 @@ task, ``tasks.make(task, physics=--physics)``) per seed of ``--seeds``, for ``--
   step runs no env step and counts as not reached). A skill without a task of its own is refused.
   The test is not capped: a step whose test never holds runs to the episode end;
 * ``NAME:until+K``: the same, and then K more env steps of NAME (the tests are looser than what
-  the next skill may need: reach's holds 5.5 cm from the cube, docs/schedules.md);
+  the next skill may need: reach's holds 5.5 cm from the cube, docs/research/schedules.md);
 * ``NAME``: the last step, bare: skill NAME until the episode ends (only the last step is bare,
   and the last step is always bare);
 

@@ -2,9 +2,9 @@
 its mean action (the deterministic policy ``eval/new_skill_success``, ``training.evaluate`` and the
 export run), actions sampled from its Gaussian (as it collects), and the best of the mean and 15
 samples by its own critic (``crr.critic_weighted_action``: CRR's critic-weighted policy, argmax
-form). docs/scheduler.md §5 and §8.
+form). docs/research/scheduler.md §5 and §8.
 
-    python -m training.experiments.readouts RUN_DIR --episodes 384 --json OUT.json
+    python -m research.readouts RUN_DIR --episodes 384 --json OUT.json
 
 ``RUN_DIR``: a ``training.run`` directory with a checkpoint (its latest that restores is read; the
 run's config.json fixes the task, physics, skills and networks). Episodes run in batches of
@@ -30,7 +30,7 @@ READOUTS = ("mean", "sampled", "critic_weighted")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = Parser(prog="python -m training.experiments.readouts", description=__doc__.split("\n\n")[0])
+    p = Parser(prog="python -m research.readouts", description=__doc__.split("\n\n")[0])
     p.add_argument("run", help="a training.run directory holding a checkpoint")
     p.add_argument("--episodes", type=int, default=384, help="episodes per read-out (a multiple of --batch)")
     p.add_argument("--batch", type=int, default=64, help="envs per jitted evaluation")
@@ -51,16 +51,6 @@ def parse_dims(text: str, action_size: int) -> tuple[int, ...]:
         raise UsageError(f"--noise_dims takes distinct comma-separated action indices in 0..{action_size - 1}, "
                          f"got {text!r}")
     return dims
-
-
-def load_run_state(run_dir: str):
-    """``(env, trainer, state, host)`` of the latest restorable checkpoint of ``run_dir`` (read only).
-    UsageError (one line) when the directory is not a run with a checkpoint."""
-    from parallel_skills.train import make_trainer
-    from training.run_files import load_checkpointed_run
-
-    run = load_checkpointed_run(run_dir)
-    return run.env, make_trainer(run.env, run.skills, run.config), run.state, run.host
 
 
 def noise_on_dims_evaluation(env, trainer, num_episodes: int, dims: tuple[int, ...]):
@@ -123,7 +113,10 @@ def main(argv=None):
             raise UsageError(f"--episodes must be a positive multiple of --batch ({args.batch}), got {args.episodes}")
         if not os.path.isdir(args.run):
             raise UsageError(f"run directory {args.run} does not exist")
-        env, trainer, state, host = load_run_state(args.run)
+        from training.run_files import load_checkpointed_run
+
+        loaded = load_checkpointed_run(args.run)
+        env, trainer, state, host = loaded.env, loaded.trainer(), loaded.state, loaded.host
         dims = [parse_dims(d, int(env.action_size)) for d in args.noise_dims]
         results = read_out(env, trainer, state, args.episodes, args.batch, args.seed, dims)
         for name, r in results.items():

@@ -3,7 +3,7 @@ the installed assets, trains a few SkillS iterations through the Brax API with t
 skill (``tasks.locomotion.controllers.get("walk")``) behind an observation / action adapter; and
 what that adapted skill does alone in Playground's env, measured.
 
-    taskset -c 1 python -m training.experiments.playground_op3 --out runs/playground_op3.json
+    taskset -c 1 python -m research.playground_op3 --out runs/playground_op3.json
 
 Nothing is downloaded: Playground's robot envs clone MuJoCo Menagerie on first load; here
 ``mjx_env.MENAGERIE_PATH`` points at the Menagerie copy shipped in the asset wheel that the
@@ -404,7 +404,7 @@ def run(args) -> dict:
     t0 = time.perf_counter()
     env = load_env()
     iface = Interface.of(env)
-    summary = {"command": "python -m training.experiments.playground_op3 " + " ".join(args.argv), "core": core,
+    summary = {"command": "python -m research.playground_op3 " + " ".join(args.argv), "core": core,
                "env": {"name": ENV_NAME, "impl": "jax", "obs": int(env.observation_size),
                        "actions": int(env.action_size), "dt": iface.dt, "action_scale": iface.action_scale,
                        "obs_noise": float(env._config.obs_noise), "load_s": round(time.perf_counter() - t0, 1)},
@@ -444,7 +444,7 @@ def summary_lines(summary: dict) -> list[str]:
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m training.experiments.playground_op3",
+    p = argparse.ArgumentParser(prog="python -m research.playground_op3",
                                 description=__doc__.splitlines()[0])
     p.add_argument("--iterations", type=int, default=3, help="SkillS iterations (0: skip training)")
     p.add_argument("--envs", type=int, default=4, help="training envs")

@@ -1,4 +1,4 @@
-"""Diagnostic: can the new-skill network imitate a scripted controller? (docs/learning.md)
+"""Diagnostic: can the new-skill network imitate a scripted controller? (docs/research/learning.md)
 
 Collects ``--envs`` × ``--steps`` transitions of a scripted controller on a kinematic task,
 executed with N(0, ``--noise``) action noise and labelled with the clean controller action
@@ -6,7 +6,7 @@ executed with N(0, ``--noise``) action noise and labelled with the clean control
 replay holds); fits the new-skill Gaussian MLP by negative log-likelihood (``--loss nll``, as
 CRR with unit weights) or mean-squared error of the mean; evaluates the clone alone.
 
-    python -m training.experiments.bc_diagnostic --noise 0.3 --labels executed --min_std 0.05
+    python -m research.bc_diagnostic --noise 0.3 --labels executed --min_std 0.05
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ def main():
     from parallel_skills.evaluation import make_evaluator
     from parallel_skills.networks import gaussian_log_prob
     from tasks.manipulation import scripted
-    from training.experiments.scripted_data import collect_noisy_expert
+    from research.scripted_data import collect_noisy_expert
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--task", default="lift")

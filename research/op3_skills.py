@@ -1,7 +1,7 @@
-"""Tune and evaluate the scripted OP3 skills (tasks/locomotion/controllers.py; docs/op3_skills.md).
+"""Tune and evaluate the scripted OP3 skills (tasks/locomotion/controllers.py; docs/research/op3_skills.md).
 
-    python -m training.experiments.op3_skills search --skill getup --generations 30
-    python -m training.experiments.op3_skills evaluate --skill getup --episodes 64
+    python -m research.op3_skills search --skill getup --generations 30
+    python -m research.op3_skills evaluate --skill getup --episodes 64
 
 ``search``: cross-entropy method (diagonal Gaussian over the flat parameter vector) on the classic
 MuJoCo C engine (physics="mujoco", one host thread). Every generation evaluates ``--pop``
@@ -183,7 +183,7 @@ def write_ckpt(skill: str, params, record: dict):
 
 
 def command_line() -> str:
-    return "python -m training.experiments.op3_skills " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    return "python -m research.op3_skills " + " ".join(shlex.quote(a) for a in sys.argv[1:])
 
 
 def init_std(skill: str, fitness_kind: str = "speed") -> np.ndarray:
@@ -370,7 +370,7 @@ def steer(args):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m training.experiments.op3_skills", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m research.op3_skills", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="cmd", required=True)
     s = sub.add_parser("search")
     s.add_argument("--skill", choices=sorted(TASK), required=True)
@@ -404,7 +404,7 @@ def main(argv=None):
     e.add_argument("--goal_speed", type=float, choices=E.GOAL_SPEEDS, default=None,
                    help="a fixed target speed (m/s) instead of both equally likely")
     e.add_argument("--write", action="store_true", help="store the result in the checkpoint record")
-    t = sub.add_parser("steer", help="choose the walk's steer gain on a grid (docs/op3_skills.md)")
+    t = sub.add_parser("steer", help="choose the walk's steer gain on a grid (docs/research/op3_skills.md)")
     t.add_argument("--values", type=_floats,
                    default=[0.0, -0.02, -0.03, -0.045, -0.06, -0.08, 0.03, 0.045])
     t.add_argument("--episodes", type=int, default=64)

@@ -1,5 +1,5 @@
 """Diagnostic: what the new skill, its critic and the scheduler of a SkillS ``stack`` run do where
-the task is one release away (docs/learning.md).
+the task is one release away (docs/research/learning.md).
 
 Restores a run's checkpoint (the latest, or ``--step``) and probes it at fixed reference states:
 *reset* (``--envs`` envs reset with ``PRNGKey(--seed)``), *hover* (then 200 steps of the scripted
@@ -21,7 +21,7 @@ away from here succeeds, holding never does) and *released* (then 20 steps of sc
 * replay: the new-skill critic's mean Q(s, a) over the buffer and at rewarded transitions, against
   the bound r_max / (1 − γ) no return can exceed.
 
-    python -m training.experiments.stack_diagnostic runs/stack-skills-s0 --step 250 --json stack.json
+    python -m research.stack_diagnostic runs/stack-skills-s0 --step 250 --json stack.json
 """
 
 from __future__ import annotations
@@ -57,14 +57,6 @@ def reference_states(env, num_envs: int, seed: int) -> dict:
     return {"reset": reset, "hover": hover, "released": scripted_run(env, "open_fingers", hover, RELEASE_STEPS)}
 
 
-def restore(run_dir: str, step):
-    """(the run's ``RunRecord``, TrainConfig, env, restored TrainingState) of checkpoint ``step``."""
-    from training.run_files import load_checkpointed_run
-
-    run = load_checkpointed_run(run_dir, step)
-    return run.record, run.config, run.env, run.state
-
-
 def rollout(env, act, state, steps: int, key):
     """Run ``act(obs [N, O], key) -> action [N, A]`` for ``steps`` steps from the batched state:
     (final state, (reward, grasp flag) after each step, [steps, N] each)."""
@@ -89,7 +81,10 @@ def analyse(run_dir: str, step, num_envs: int, seed: int) -> dict:
     from parallel_skills import normalization as obs_norm
     from tasks.manipulation import task_defs
 
-    run, cfg, env, ts = restore(run_dir, step)
+    from training.run_files import load_checkpointed_run
+
+    loaded = load_checkpointed_run(run_dir, step)
+    run, cfg, env, ts = loaded.record, loaded.config, loaded.env, loaded.state
     nc, sc = cfg.new_skill, cfg.scheduler
     n_total, act_size = len(run.skills) + 1, int(env.action_size)
     policy, critic = learners.new_skill_networks(act_size, nc)

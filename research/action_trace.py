@@ -1,8 +1,8 @@
 """The new skill of a run's checkpoint acting alone with its mean action: one action dimension's
 mean and std, and chosen observation entries, at every step of a few episodes (where a
-deterministic read-out gets stuck; docs/scheduler.md §8).
+deterministic read-out gets stuck; docs/research/scheduler.md §8).
 
-    python -m training.experiments.action_trace RUN_DIR --dim 4 --obs finger_angle,grasp --episodes 4 --json OUT.json
+    python -m research.action_trace RUN_DIR --dim 4 --obs finger_angle,grasp --episodes 4 --json OUT.json
 
 With each step's action the trace holds the new skill's critic there (the minimum over its critics, as
 CRR's advantage takes it): ``q_mean`` at the mean action, ``q_up`` / ``q_down`` at the mean action with
@@ -121,7 +121,7 @@ def over_target_summary(out: dict, top: str, bottom: str) -> dict:
 
 
 def main(argv=None):
-    p = Parser(prog="python -m training.experiments.action_trace", description=__doc__.split("\n\n")[0])
+    p = Parser(prog="python -m research.action_trace", description=__doc__.split("\n\n")[0])
     p.add_argument("run", help="a training.run directory holding a checkpoint (manipulation task)")
     p.add_argument("--dim", type=int, default=4, help="action index to trace")
     p.add_argument("--obs", default="finger_angle,grasp", help="comma-separated observation entries")
@@ -135,7 +135,7 @@ def main(argv=None):
 
     def run():
         from tasks.manipulation import layout as L
-        from training.experiments.readouts import load_run_state
+        from training.run_files import load_checkpointed_run
 
         names = [n for n in args.obs.split(",") if n]
         over = list(parse_over(args.over)) if args.over else []
@@ -145,7 +145,8 @@ def main(argv=None):
         bad = [n for n in names if n not in L.OBS_SLICES]
         if bad:
             raise UsageError(f"--obs: unknown entry {bad[0]!r}; valid: {', '.join(L.OBS_SLICES)}")
-        env, trainer, state, host = load_run_state(args.run)
+        loaded = load_checkpointed_run(args.run)
+        env, trainer, state, host = loaded.env, loaded.trainer(), loaded.state, loaded.host
         if not 0 <= args.dim < int(env.action_size):
             raise UsageError(f"--dim must be an action index in 0..{int(env.action_size) - 1}, got {args.dim}")
         if int(env.observation_size) != L.OBS_SIZE:

@@ -1,8 +1,8 @@
 """What the new skill's CRR fit sees where a cube is held over another: the stored transitions at
 those states in a run's checkpointed replay, counted by the skill that acted and by the sign of one
-action dimension, with the checkpoint's CRR weights f(A) (docs/skills.md, "What the critic says").
+action dimension, with the checkpoint's CRR weights f(A) (docs/research/skills.md, "What the critic says").
 
-    python -m training.experiments.replay_census RUN_DIR --over green,yellow --json OUT.json
+    python -m research.replay_census RUN_DIR --over green,yellow --json OUT.json
 
 ``RUN_DIR``: a ``training.run`` directory of a manipulation task whose checkpoint holds its replay
 (``replay_checkpoint``, the default). Rows where TOP is held over BOTTOM (``action_trace``'s test:
@@ -27,7 +27,7 @@ def over_rows(obs, top: str, bottom: str):
     """bool [R]: raw observations [R, O] where cube ``top`` is held over ``bottom``
     (``action_trace.held_over``)."""
     from tasks.manipulation import layout as L
-    from training.experiments.action_trace import held_over
+    from research.action_trace import held_over
 
     return held_over(obs[:, L.GRASP], obs[:, L.cube_pos(top)], obs[:, L.cube_pos(bottom)])
 
@@ -101,7 +101,7 @@ def census(run, top: str, bottom: str, dim: int, key_seed: int = 0, chunk: int =
 
 
 def main(argv=None):
-    p = Parser(prog="python -m training.experiments.replay_census", description=__doc__.split("\n\n")[0])
+    p = Parser(prog="python -m research.replay_census", description=__doc__.split("\n\n")[0])
     p.add_argument("run", help="a training.run directory whose checkpoint holds its replay (manipulation task)")
     p.add_argument("--over", default="green,yellow", help="TOP,BOTTOM cube names")
     p.add_argument("--dim", type=int, default=4, help="the action index split by sign (4: the fingers)")
@@ -111,7 +111,7 @@ def main(argv=None):
 
     def run():
         from tasks.manipulation import layout as L
-        from training.experiments.action_trace import parse_over
+        from research.action_trace import parse_over
         from training.run_files import load_checkpointed_run
 
         over = parse_over(args.over)

@@ -1,7 +1,7 @@
 """Fixed schedules of the two OP3 skills on GetUpAndWalk: what a scheduler could earn with them, and
 what handing over between them costs (docs/locomotion.md, "Why the schedulers stood with the stage-3 walk").
 
-    python -m training.experiments.op3_schedules getup walk getup_then_walk walk_then_getup:103 random:10
+    python -m research.op3_schedules getup walk getup_then_walk walk_then_getup:103 random:10
 
 Each schedule drives the shipped scripted skills (checkpoints/op3/) on ``getup_and_walk`` (C engine,
 ``--episodes`` resets from ``--seed``, 600-step episodes, no noise), choosing the skill per step:

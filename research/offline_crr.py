@@ -4,7 +4,7 @@ Isolates the new skill's learning from the scheduler: collects ``--envs × --ste
 scripted controller with Gaussian action noise on a kinematic task, then runs CRR updates on them and
 evaluates the new skill alone every ``--chunk`` updates.
 
-    python -m training.experiments.offline_crr --task lift --expert lift_green --crr_mode exp --chunks 8
+    python -m research.offline_crr --task lift --expert lift_green --crr_mode exp --chunks 8
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ def main():
     from parallel_skills.evaluation import make_evaluator
     from parallel_skills.replay import Transition
     from tasks.manipulation import scripted
-    from training.experiments.scripted_data import collect_noisy_expert
+    from research.scripted_data import collect_noisy_expert
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--task", default="lift")
