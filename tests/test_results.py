@@ -171,7 +171,9 @@ def test_a_shipped_config_is_the_setting_of_the_runs_behind_it(name):
     assert len(seeds) >= 3, f"{variant}: {seeds}"
     for seed in seeds:
         where = os.path.join(variant, seed, "config.json")
-        run = config.from_dict(config.TrainConfig(), json.load(open(where, encoding="utf-8"))["train_config"], where)
+        # (Records from before docs/research/pruned.md hold the removed fields, at their off values.)
+        recorded = results.known_fields(config.TrainConfig, json.load(open(where, encoding="utf-8"))["train_config"])
+        run = config.from_dict(config.TrainConfig(), recorded, where)
         for field in config.dotted_names(data):
             want, got = config.dotted_value(shipped, field), config.dotted_value(run, field)
             assert got == want, f"{name}: {field}={want!r}, run {seed} has {got!r}"
