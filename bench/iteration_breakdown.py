@@ -5,6 +5,14 @@ are about this split: on a CPU the learners are FLOP-bound, so their share is wh
 
     python bench/iteration_breakdown.py                      # the device's default recipe, lift
     python bench/iteration_breakdown.py --recipe parallel --num_envs 1024
+    python bench/iteration_breakdown.py --recipe parallel --num_envs 4096 --flops   # FLOPs, no timing
+
+``--flops``: XLA's own FLOP count (``cost_analysis``) of one compiled learner update of each learner
+and of the acting part, times the updates per iteration: the FLOPs of one iteration, what a device
+of a given sustained FLOP rate would need for it (a projection, not a measurement: memory traffic,
+launch overheads and the env are left out). Each update is compiled on its own because XLA counts a
+loop's body once, whatever its trip count; the acting part loops over ``unroll_length`` steps, so
+its count is multiplied by it.
 """
 
 from __future__ import annotations
@@ -75,6 +83,37 @@ def breakdown(env, skills, cfg, fill: int = 4, eval_every: int = 8, repeats: int
     return parts
 
 
+def flops_of(fn, *args) -> float:
+    """XLA's FLOP count of ``fn(*args)`` compiled (``cost_analysis``; a loop's body counted once)."""
+    cost = jax.jit(fn).lower(*args).compile().cost_analysis()
+    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
+    return float(cost.get("flops", float("nan")))
+
+
+def iteration_flops(env, skills, cfg, fill: int = 2) -> dict:
+    """FLOPs of one iteration at the resolved config ``cfg``: ``{"acting + insert", "scheduler
+    update", "new-skill update", "scheduler updates", "new-skill updates", "whole iteration"}`` (the
+    plural rows: one update's count times the updates per iteration; acting: the unrolled step's
+    count times ``unroll_length``)."""
+    trainer = make_trainer(env, skills, cfg)
+    replay = trainer.replay
+    state = jax.jit(trainer.init)(jax.random.PRNGKey(0))
+    step = jax.jit(lambda s: trainer.collect_insert(s, s.key)[0].replace(key=jax.random.fold_in(s.key, 1)))
+    for _ in range(fill):
+        state = step(state)
+    key = jax.random.PRNGKey(1)
+    out = {"acting + insert": cfg.unroll_length * flops_of(lambda s: trainer.collect_insert(s, key)[0], state)}
+    if trainer.scheduler_updates:
+        out["scheduler update"] = flops_of(lambda ts, k: learners.scheduler_learner_update(
+            ts.scheduler, replay.sample_scheduler(ts.replay, ts.normalizer, k), k, cfg.scheduler)[0], state, key)
+        out["scheduler updates"] = out["scheduler update"] * trainer.scheduler_updates
+    out["new-skill update"] = flops_of(lambda ts, k: learners.new_skill_learner_update(
+        ts.new_skill, replay.sample_new_skill(ts.replay, ts.normalizer, k), k, cfg.new_skill)[0], state, key)
+    out["new-skill updates"] = out["new-skill update"] * trainer.new_skill_updates
+    out["whole iteration"] = out["acting + insert"] + out.get("scheduler updates", 0.0) + out["new-skill updates"]
+    return out
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--task", default="lift")
@@ -84,6 +123,9 @@ def main():
     p.add_argument("--config", default=None, help="JSON file of TrainConfig fields (as training.run --config)")
     p.add_argument("--eval_every", type=int, default=8, help="iterations per evaluation, to share its cost")
     p.add_argument("--fill", type=int, default=4, help="iterations run first to fill the replay")
+    p.add_argument("--flops", action="store_true", help="count each part's FLOPs (XLA's cost analysis) instead of "
+                   "timing it, and project the iteration's time at --tflops")
+    p.add_argument("--tflops", default="10,30,60", help="with --flops: sustained TFLOP/s to project at")
     args = p.parse_args()
 
     env = tasks.make(args.task)
@@ -95,6 +137,19 @@ def main():
             data = json.load(f)
         cfg = from_dict(cfg, data, args.config)
     cfg, _ = resolve(cfg, given=dotted_names(data))
+    if args.flops:
+        counts = iteration_flops(env, skills, cfg, min(args.fill, 2))
+        print(f"{args.task}, recipe {cfg.recipe}, {cfg.num_envs} envs, {cfg.steps_per_iteration:,} env steps per "
+              f"iteration; FLOPs by XLA's cost analysis ({jax.default_backend()})")
+        print(describe_schedule(learner_schedule(cfg)))
+        for name, flops in counts.items():
+            print(f"{name:<22} {flops / 1e9:12.2f} GFLOP")
+        whole = counts["whole iteration"]
+        for rate in (float(x) for x in args.tflops.split(",")):
+            t = whole / (rate * 1e12)
+            print(f"projection at {rate:g} TFLOP/s sustained: {1e3 * t:.1f} ms per iteration, "
+                  f"{cfg.steps_per_iteration / t:,.0f} env steps/s (learners and acting's FLOPs only)")
+        return
     parts = breakdown(env, skills, cfg, args.fill, args.eval_every)
     whole = parts.pop("whole iteration")
     total = sum(parts.values())

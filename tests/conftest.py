@@ -5,9 +5,15 @@ from __future__ import annotations
 
 import os
 
-import jax
-import pytest
-from hypothesis import settings
+# Tests check behaviour, never speed, and compiling dominates their time: XLA compiles at its lowest
+# optimisation level (on this CPU about 30 % less CPU time for a training test). Set before JAX
+# starts; the commands the tests start inherit it.
+TEST_XLA_FLAGS = "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
+os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + TEST_XLA_FLAGS).strip()
+
+import jax  # noqa: E402
+import pytest  # noqa: E402
+from hypothesis import settings  # noqa: E402
 
 # Property tests draw the same examples on every run (CI reruns a clean clone at each stop: a new
 # draw must not turn it red by chance); ``HYPOTHESIS_PROFILE=explore`` draws new ones, to search.
@@ -34,3 +40,11 @@ def one_core():
         yield
     finally:
         os.sched_setaffinity(0, saved)
+
+
+@pytest.hookimpl(optionalhook=True)  # (a hook of pytest-xdist: unknown under -p no:xdist)
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto`` (pyproject's addopts): one worker per core this process may run on, at most 4 (a
+    worker compiling a training iteration holds up to ~5 GB)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(4, cores))
