@@ -683,7 +683,8 @@ def build_parser():
     p.add_argument("--report", action="store_true", help="print the table from the runs in OUT; train nothing")
     p.add_argument("--skills_runs", default=SKILLS_RUNS, help="SkillS's runs for the report: "
                    "DIR/<task>/<variant>/s<seed>/metrics.csv (default the archive, docs/results/paper_runs)")
-    p.add_argument("--skills_variant", default="skills", help="SkillS's variant there (default skills)")
+    p.add_argument("--skills_variant", default="default", help="SkillS's variant there (default: default, the "
+                   "name under which the paper runner archives today's default recipe)")
     p.add_argument("--threshold", type=float, default=THRESHOLD)
     return p
 
