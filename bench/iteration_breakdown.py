@@ -84,10 +84,10 @@ def breakdown(env, skills, cfg, fill: int = 4, eval_every: int = 8, repeats: int
 
 
 def flops_of(fn, *args) -> float:
-    """XLA's FLOP count of ``fn(*args)`` compiled (``cost_analysis``; a loop's body counted once)."""
-    cost = jax.jit(fn).lower(*args).compile().cost_analysis()
-    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
-    return float(cost.get("flops", float("nan")))
+    """XLA's FLOP count of ``fn(*args)`` compiled (``learner_scaling.compiled_flops``)."""
+    from learner_scaling import compiled_flops
+
+    return compiled_flops(jax.jit(fn).lower(*args).compile())
 
 
 def iteration_flops(env, skills, cfg, fill: int = 2) -> dict:

@@ -26,7 +26,8 @@ from parallel_skills.replay import Transition
 from training import skill_library
 
 
-def _flops(compiled) -> float:
+def compiled_flops(compiled) -> float:
+    """XLA's FLOP count of a compiled function (``cost_analysis``; a loop's body is counted once)."""
     cost = compiled.cost_analysis()
     cost = cost[0] if isinstance(cost, (list, tuple)) else cost
     return float(cost.get("flops", float("nan")))
@@ -44,7 +45,7 @@ def measure(fn, args, min_time: float):
             jax.block_until_ready(compiled(*args))
             n += 1
         best = min(best, (time.perf_counter() - t0) / n)
-    return best, _flops(compiled)
+    return best, compiled_flops(compiled)
 
 
 def random_batch(key, b: int, obs_size: int, action_size: int, num_skills: int, lengths) -> Transition:
