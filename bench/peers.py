@@ -735,9 +735,11 @@ def _job_command(args, task, algo, reward, seed, budget, num_evals, episodes) ->
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
-    if args.smoke:  # compile fast (before JAX starts): the smoke run checks the script, its figures mean nothing
-        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0"
-                                   " --xla_llvm_disable_expensive_passes=true").strip()
+    if args.smoke:  # compile fast: the smoke run checks the script, its figures mean nothing
+        os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "1"  # (read when JAX starts; JAX may have started)
+        import jax
+
+        jax.config.update("jax_disable_most_optimizations", True)
     task_list, learners, seeds, budgets, num_evals, episodes = main_guard(lambda: plan(args))
     if args.report:
         print(report(args.out, task_list, learners, seeds, args.skills_runs, args.skills_variant, args.threshold))

@@ -225,7 +225,7 @@ def test_callback_env_unbatched_and_nan_reset(mujoco_env):
 # --- MJX (impl jax / warp) ----------------------------------------------------------------------
 @pytest.mark.timeout(400)
 @pytest.mark.parametrize("impl", ["jax", "warp"])
-def test_mjx_sparse_tasks_reset_step_vmap(impl, one_core):
+def test_mjx_sparse_tasks_reset_step_vmap(impl, one_core, full_optimisation):
     from tasks.manipulation.mjx_env import make_mjx_env
 
     n = MJX_BATCH
@@ -252,7 +252,7 @@ def test_mjx_sparse_tasks_reset_step_vmap(impl, one_core):
 
 
 @pytest.mark.timeout(300)
-def test_mjx_nan_injection_resets(one_core):
+def test_mjx_nan_injection_resets(one_core, full_optimisation):
     from tasks.manipulation.mjx_env import make_mjx_env
 
     n = MJX_BATCH  # the batch shape of the other MJX tests: the shared physics compiles once
@@ -274,7 +274,7 @@ def test_mjx_nan_injection_resets(one_core):
 
 
 @pytest.mark.timeout(300)
-def test_mjx_agrees_with_mujoco_twin(one_core):
+def test_mjx_agrees_with_mujoco_twin(one_core, full_optimisation):
     """Same initial state, same (scripted lift) action sequence: MJX (float32) stays close to the
     classic MuJoCo twin (float64) over 50 agent steps: approach, descent and the start of the grasp."""
     from tasks.manipulation.mjx_env import make_mjx_env
@@ -290,9 +290,11 @@ def test_mjx_agrees_with_mujoco_twin(one_core):
     state = P.init_states([2])[0]
     s = env.state_from(env.data_from(state[P.QPOS], state[P.ACT]), jax.random.PRNGKey(0))
     np.testing.assert_allclose(np.asarray(s.obs), obs_twin[0], atol=1e-6)
-    # The same batch shape as the other MJX tests (one compile of the shared physics): 8 copies.
-    s = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (MJX_BATCH,) + x.shape), s)
-    step = jax.vmap(env.step)  # eager vmap: the physics inside is jitted
+    # The same batch shape as the other MJX tests: 8 copies, placed on the device as the step's own
+    # outputs are (otherwise its second call compiles again).
+    s = jax.device_put(jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (MJX_BATCH,) + x.shape), s),
+                       jax.devices()[0])
+    step = jax.jit(jax.vmap(env.step))
     dev = []
     for t, a in enumerate(actions):
         s = step(s, jnp.broadcast_to(jnp.asarray(a, jnp.float32), (MJX_BATCH, L.ACTION_SIZE)))
