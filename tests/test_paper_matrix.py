@@ -41,6 +41,12 @@ def test_variants():
         parse_variant("bc", METHODS)
     with pytest.raises(Exception, match="bad setting"):
         parse_variant("kl_reg[epsilon]", METHODS)
+    # A list value (brackets and commas inside the brackets), named without brackets.
+    lengths = parse_variant("skills[scheduler.skill_lengths=[50,100],replay_size=1000]", METHODS)
+    assert lengths.config == {"scheduler": {"skill_lengths": [50, 100]}, "replay_size": 1000}
+    assert lengths.name == "skills-skill_lengths=50,100-replay_size=1000"
+    assert paper.split_outside_brackets("skills[scheduler.skill_lengths=[100]],k1, scratch") == [
+        "skills[scheduler.skill_lengths=[100]]", "k1", "scratch"]
 
 
 def _metrics(d, rows, export_budget=None):

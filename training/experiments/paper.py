@@ -67,8 +67,20 @@ SKILL_SETS = {
 DEFAULT_NAMES = ("default", "default-library", "parallel-4096")
 FRACTIONS = (0.25, 0.5, 1.0)  # of the budget, for the table
 KEY = "eval/new_skill_success"  # what the table and the choice of a method's best setting read
-_VARIANT = re.compile(r"^(?P<name>[a-z0-9_]+(?:-[a-z0-9_]+)*)(\[(?P<settings>[^\]]*)\])?$")
-_ITEM = re.compile(r"[a-z0-9_]+(?:-[a-z0-9_]+)*(?:\[[^\]]*\])?")
+_VARIANT = re.compile(r"^(?P<name>[a-z0-9_]+(?:-[a-z0-9_]+)*)(\[(?P<settings>.*)\])?$")
+
+
+def split_outside_brackets(text: str, sep: str = ",") -> list:
+    """``text`` split at each ``sep`` outside brackets, parts stripped, empty ones dropped:
+    ``"skills[a.b=1,c.d=[2,3]],k1"`` -> ``["skills[a.b=1,c.d=[2,3]]", "k1"]``."""
+    parts, depth, start = [], 0, 0
+    for i, ch in enumerate(text):
+        depth += (ch == "[") - (ch == "]")
+        if ch == sep and depth == 0:
+            parts.append(text[start:i])
+            start = i + 1
+    parts.append(text[start:])
+    return [p.strip() for p in parts if p.strip()]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,7 +141,7 @@ def parse_variant(text: str, methods) -> Variant:
         raise UsageError(f"unknown method, ablation or skill set {name!r}; valid: {', '.join(valid)}")
     config = json.loads(json.dumps(config))
     parts = []
-    for item in filter(None, (m.group("settings") or "").split(",")):
+    for item in split_outside_brackets(m.group("settings") or ""):
         key, sep, value = item.partition("=")
         if not sep or not key:
             raise UsageError(f"bad setting {item!r} in {text!r}: use section.field=value")
@@ -142,7 +154,8 @@ def parse_variant(text: str, methods) -> Variant:
         for p in path:
             node = node.setdefault(p, {})
         node[last] = parsed
-        parts.append(f"{setting_label(key)}={value}")
+        label = ",".join(map(str, parsed)) if isinstance(parsed, list) else value  # (no brackets in paths)
+        parts.append(f"{setting_label(key)}={label}")
     return Variant(name="-".join([name] + parts), method=method, config=config, run_args=run_args, kind=kind)
 
 
@@ -420,11 +433,7 @@ def main(argv=None):
         for t in task_list:
             if t not in task_registry.names():
                 raise UsageError(f"unknown task {t!r}; valid: {', '.join(task_registry.names())}")
-        sep = ";" if ";" in args.methods else ","
-        if sep == "," and "[" in args.methods:
-            items = _ITEM.findall(args.methods)
-        else:
-            items = [x for x in args.methods.split(sep) if x.strip()]
+        items = split_outside_brackets(args.methods, ";" if ";" in args.methods else ",")
         variants = [parse_variant(x, method_registry.names()) for x in items]
         if len({v.name for v in variants}) != len(variants):
             raise UsageError("a variant is listed twice")
