@@ -66,13 +66,30 @@ def test_chain_lift_then_stack_feeds_the_new_skill_forward_and_continues(tmp_pat
     assert r2.stdout.count("skipped") == 2
     assert before == {p: os.path.getmtime(tmp_path / "chain" / "skills" / p) for p in before}
     # Another command on the same directory is refused, one line, exit 2.
-    r3 = _chain(argv[:-2] + ["--eval_episodes", "3"], tmp_path)
-    assert r3.returncode == 2 and r3.stderr.startswith("error:") and len(r3.stderr.strip().splitlines()) == 1
-    _check_raised_budgets(tmp_path, argv)
+    err = _refused(argv[:-2] + ["--eval_episodes", "3"], tmp_path, capsys)
+    assert err[0].startswith("error:") and len(err) == 1
+    _check_raised_budgets(tmp_path, argv, capsys)
     _check_ship(tmp_path, capsys)
 
 
-def _check_raised_budgets(tmp_path, argv):
+def _refused(argv, cwd, capsys) -> list:
+    """``training.chain``'s refusal of ``argv`` in ``cwd`` (in this process: a refusal trains nothing):
+    exit code 2; the lines it printed to stderr."""
+    from training.chain import main
+
+    capsys.readouterr()
+    here = os.getcwd()
+    os.chdir(cwd)
+    try:
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+    finally:
+        os.chdir(here)
+    assert e.value.code == 2, argv
+    return capsys.readouterr().err.strip().splitlines()
+
+
+def _check_raised_budgets(tmp_path, argv, capsys):
     """A rerun may raise a stage's budget: that stage is extended (its shorter run's outputs kept)
     and published again; lowering a budget, or extending a stage whose skill a later stage trained
     with, is refused in one line."""
@@ -81,9 +98,8 @@ def _check_raised_budgets(tmp_path, argv):
                           (["--stack_timesteps", "20"], "can be raised, not lowered"),
                           (["--timesteps", "reach_blue=80"], "--timesteps names reach_blue, not a stage"),
                           (["--timesteps", "stack=8x"], "is not STAGE=N")]:
-        r = _chain(argv + extra, tmp_path)
-        lines = r.stderr.strip().splitlines()
-        assert r.returncode == 2 and len(lines) == 1 and needle in lines[0], (extra, r.stderr[-2000:])
+        lines = _refused(argv + extra, tmp_path, capsys)
+        assert len(lines) == 1 and needle in lines[0], (extra, lines)
     before = json.load(open(chain / "chain.json"))
     r = _chain(argv + ["--timesteps", "stack=80"], tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
