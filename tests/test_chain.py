@@ -172,18 +172,8 @@ def _check_ship(tmp_path, capsys):
     (["--out", "c", "--physics", "mujoco", "--start_states", "mixed"], "kinematic physics only"),
 ])
 def test_chain_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, argv, message):
-    from training.chain import main
-
-    cwd = os.getcwd()
-    os.chdir(tmp_path)
-    try:
-        with pytest.raises(SystemExit) as e:
-            main(argv)
-    finally:
-        os.chdir(cwd)
-    assert e.value.code == 2
-    err = capsys.readouterr().err
-    assert err.startswith("error:") and message in err and len(err.strip().splitlines()) == 1
+    err = _refused(argv, tmp_path, capsys)
+    assert len(err) == 1 and err[0].startswith("error:") and message in err[0]
     assert os.listdir(tmp_path) == []
 
 
